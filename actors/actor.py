@@ -1,0 +1,136 @@
+"""`RolloutActor`: one process of rollout work. It owns a `RolloutWorker`, the sockets to the
+learner (PUSH unrolls, SUB + snapshot request for weights) and a sampler client for draws.
+
+The same class runs as a Ray actor (cluster and local modes; the learner wraps it with
+`ray.remote(max_concurrency=2)` so `stop()` can arrive while `run()` loops) and as a plain
+object driven step by step in serial mode (`run_once`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import threading
+import time
+
+import numpy as np
+import zmq
+
+from actors.config import ActorConfig
+from actors.draws import DrawCache
+from actors.rollout import RolloutWorker, configure_torch
+from actors.weights_client import WeightsClient
+from common import sockets, wire
+from common.policy import PolicyConfig
+from common.tasks.base import TaskConfig
+from common.tasks.registry import task_space
+
+log = logging.getLogger(__name__)
+
+
+class RolloutActor:
+    def __init__(
+        self,
+        actor_id: int,
+        task: TaskConfig,
+        policy_cfg: PolicyConfig,
+        cfg: ActorConfig,
+        endpoints: dict[str, str],
+        seed: int = 0,
+    ):
+        configure_torch(cfg.torch_threads)
+        self.actor_id, self.cfg = actor_id, cfg
+        self._endpoints = dict(endpoints)
+        self._stop = threading.Event()
+        self.sampler = None
+        fetch = None
+        if endpoints.get("sampler"):
+            from sampler.client import SamplerClient  # the sampler package is optional for actors
+
+            self.sampler = SamplerClient(endpoints["sampler"], timeout_s=cfg.sampler_timeout_s, retries=cfg.sampler_retries)
+            fetch = self._fetch_draws
+        self.draws = DrawCache(fetch, task_space(task), cfg.draw_batch, seed=seed + 1)
+        self.worker = RolloutWorker(actor_id, task, policy_cfg, cfg, self.draws, seed=seed)
+        self.weights = WeightsClient(actor_id, self.endpoints, cfg.weights_timeout_s)
+        self.push = sockets.connect_unroll_push(endpoints["unrolls"])
+        self.send_stalls = 0
+        """Sends that timed out on a full queue and were retried (the unroll was kept)."""
+        self.last_send = time.monotonic()
+
+    def endpoints(self) -> dict[str, str]:
+        return self._endpoints
+
+    def _fetch_draws(self, n: int) -> tuple[np.ndarray, list[str]]:
+        reply = self.sampler.draw(n)
+        if isinstance(reply, tuple):
+            return reply
+        return reply.params, list(reply.clip_ids)
+
+    def _send(self, msg) -> bool:
+        frames = wire.encode(msg)
+        while not self._stop.is_set():
+            try:
+                self.push.send_multipart(frames, copy=False)
+                self.last_send = time.monotonic()
+                return True
+            except zmq.Again:
+                self.send_stalls += 1
+        return False
+
+    def run_once(self, weights_timeout_ms: int = 0) -> bool:
+        """Take new weights if any, then collect and send one unroll. False while no weights yet."""
+        new = self.weights.poll(weights_timeout_ms)
+        if new is not None:
+            try:
+                self.worker.set_weights(new)
+            except ValueError as exc:  # weights for another network: refuse, keep the old ones
+                self.weights.rejected += 1
+                log.error("actor %d: refused weights version %d: %s", self.actor_id, new.policy_version, exc)
+        if self.worker.policy_version < 0:
+            if time.monotonic() - self.last_send > self.cfg.heartbeat_s:
+                self._send(wire.HeartbeatMsg(actor_id=self.actor_id, seq=self.worker.seq - 1, env_steps=self.worker.env_steps))
+            return False
+        msg = self.worker.collect()
+        msg = dataclasses.replace(msg, sampler_outages=self.draws.outages)
+        self._send(msg)
+        return True
+
+    def run(self, max_seconds: float | None = None) -> dict:
+        """Loop until `stop()` (or `max_seconds`); returns this actor's counters."""
+        deadline = None if max_seconds is None else time.monotonic() + max_seconds
+        while not self._stop.is_set() and (deadline is None or time.monotonic() < deadline):
+            self.run_once(weights_timeout_ms=0 if self.worker.policy_version >= 0 else 200)
+        return self.stats()
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def stats(self) -> dict:
+        return {
+            "actor_id": self.actor_id,
+            "env_steps": self.worker.env_steps,
+            "unrolls_sent": self.worker.seq,
+            "policy_version": self.worker.policy_version,
+            "send_stalls": self.send_stalls,
+            "sampler_outages": self.draws.outages,
+            "pid": os.getpid(),
+            "node_id": _node_id(),
+        }
+
+    def close(self) -> None:
+        self.push.close(linger=0)
+        self.weights.close()
+        if self.sampler is not None:
+            self.sampler.close()
+
+
+def _node_id() -> str:
+    try:
+        import ray
+
+        if ray.is_initialized():
+            return ray.get_runtime_context().get_node_id()
+    except Exception:  # noqa: BLE001 - best effort, for reports only
+        pass
+    return "local"

@@ -1,0 +1,43 @@
+"""The `morphmimic` command: one entry point whose subcommands live in their own modules.
+
+Each subcommand module exposes `main(argv: list[str]) -> int`; it is imported only when
+chosen, so `morphmimic --help` stays fast and a broken optional part cannot break the rest.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+COMMANDS: dict[str, tuple[str, str]] = {
+    "train": ("learner.main", "train a controller (same as `python -m learner.main`)"),
+    "evaluate": ("learner.evaluate", "evaluate a checkpoint over random shapes (the paper's protocol)"),
+    "character": ("common.characters.cli", "build a character from a preset and shape values; write MJCF and PNG"),
+    "motion": ("common.motion.cli", "import, view and check motion clips"),
+    "bench": ("common.bench", "benchmarks: throughput | characters | sampler | soak"),
+}
+
+
+def usage() -> str:
+    width = max(len(name) for name in COMMANDS)
+    lines = ["usage: morphmimic <command> [options]   (morphmimic <command> --help for its options)", "", "commands:"]
+    lines += [f"  {name:<{width}}  {text}" for name, (_, text) in COMMANDS.items()]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] in ("-h", "--help"):
+        print(usage())
+        return 0
+    name, rest = argv[0], argv[1:]
+    if name not in COMMANDS:
+        print(f"morphmimic: unknown command {name!r}; choose one of {', '.join(COMMANDS)}", file=sys.stderr)
+        print(usage(), file=sys.stderr)
+        return 2
+    module = importlib.import_module(COMMANDS[name][0])
+    return int(module.main(rest) or 0)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,111 @@
+"""Request/reply over DEALER -> ROUTER with the ZeroMQ guide's Lazy Pirate client.
+
+The client sends a request, polls for the reply with a timeout, and on timeout closes its
+socket, looks the endpoint up again (the service may have moved or restarted) and retries.
+The server decodes each request with the wire codec; a malformed one gets an `ErrorMsg`
+reply and is counted per kind, and the server keeps serving.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+from typing import Any, Callable
+
+import zmq
+
+from common import sockets, wire
+
+log = logging.getLogger(__name__)
+
+
+class ServiceUnavailable(RuntimeError):
+    """No reply after every retry; the caller decides how to degrade."""
+
+
+class RpcClient:
+    """Lazy Pirate client. `endpoint` is a string or a callable returning the current one."""
+
+    def __init__(self, endpoint: str | Callable[[], str], timeout_s: float = 2.0, retries: int = 3):
+        self._lookup = endpoint if callable(endpoint) else (lambda: endpoint)
+        self.timeout_ms = int(timeout_s * 1000)
+        self.retries = retries
+        self.reconnects = 0
+        self._sock: zmq.Socket | None = None
+
+    def _socket(self) -> zmq.Socket:
+        if self._sock is None:
+            self._sock = sockets.connect_dealer(self._lookup())
+        return self._sock
+
+    def _reset(self) -> None:
+        if self._sock is not None:
+            self._sock.close(linger=0)
+            self._sock = None
+        self.reconnects += 1
+
+    def call(self, request: Any, expect: type | tuple[type, ...]) -> Any:
+        """Send `request`, return the decoded reply of type `expect`.
+
+        Raises `ServiceUnavailable` after `retries` timeouts, `wire.WireError` if the service
+        answered with an `ErrorMsg` (its reason is the message) or with garbage.
+        """
+        frames = wire.encode(request)
+        for _ in range(self.retries):
+            sock = self._socket()
+            sock.send_multipart([b"", *frames], copy=False)
+            if sock.poll(self.timeout_ms, zmq.POLLIN):
+                reply_frames = sock.recv_multipart(copy=False)
+                reply = wire.decode(reply_frames[1:])
+                if isinstance(reply, wire.ErrorMsg):
+                    raise wire.WireError(f"service refused {type(request).KIND}: {reply.reason}", reply.error_kind)
+                if not isinstance(reply, expect):
+                    raise wire.WireError(f"expected {expect} in reply to {type(request).KIND}, got {type(reply).KIND}")
+                return reply
+            # NOTE: a DEALER that timed out may still receive the late reply later; a fresh socket
+            # guarantees the next reply we read answers the next request (Lazy Pirate).
+            self._reset()
+        raise ServiceUnavailable(f"no reply to {type(request).KIND} from {self._lookup()} after {self.retries} tries")
+
+    def close(self) -> None:
+        if self._sock is not None:
+            self._sock.close(linger=0)
+            self._sock = None
+
+
+class RouterServer:
+    """Decode-dispatch-reply on a bound ROUTER socket; never raises on a peer's bad input."""
+
+    def __init__(self, sock: zmq.Socket, handler: Callable[[Any], Any], name: str):
+        self.sock = sock
+        self.handler = handler
+        self.name = name
+        self.rejected: collections.Counter[str] = collections.Counter()
+        self.served = 0
+
+    def serve_pending(self, timeout_ms: int = 0, max_requests: int = 1000) -> int:
+        """Answer requests that arrive within `timeout_ms`; returns how many were handled."""
+        handled = 0
+        while handled < max_requests and self.sock.poll(timeout_ms if handled == 0 else 0, zmq.POLLIN):
+            frames = self.sock.recv_multipart(copy=False)
+            handled += 1
+            identity = frames[0].bytes
+            # DEALER clients put an empty delimiter frame first; tolerate REQ-style and bare ones.
+            body = frames[2:] if len(frames) > 1 and len(frames[1].bytes) == 0 else frames[1:]
+            try:
+                request = wire.decode(body)
+                wire.check_finite(request)
+                reply = self.handler(request)
+            except (wire.WireError, ValueError) as exc:
+                kind = getattr(exc, "kind", "invalid")
+                if self.rejected[kind] == 0:
+                    log.warning("%s: rejected a request (%s): %s", self.name, kind, exc)
+                self.rejected[kind] += 1
+                reply = wire.ErrorMsg(reason=str(exc), error_kind=kind)
+            self.served += 1
+            try:
+                self.sock.send_multipart([identity, b"", *wire.encode(reply)], copy=False)
+            except zmq.ZMQError as exc:  # EHOSTUNREACH with ROUTER_MANDATORY: the peer left
+                self.rejected["unreachable_peer"] += 1
+                log.debug("%s: could not reply to a departed peer: %s", self.name, exc)
+        return handled

@@ -1,0 +1,101 @@
+"""Every ZeroMQ socket of the system is made here, with its high-water mark, LINGER and what
+it loses when a limit is hit written beside the option.
+
+Patterns (DESIGN.md "Data flows"):
+    unrolls   actor PUSH  -> learner PULL (learner binds)
+    weights   learner PUB -> actor SUB, plus a snapshot request DEALER -> learner ROUTER
+    sampler   client DEALER -> sampler ROUTER (sampler binds; Lazy Pirate retries in the client)
+"""
+
+from __future__ import annotations
+
+import zmq
+
+UNROLL_SEND_HWM = 4
+"""Unrolls an actor may queue before `send` blocks: backpressure slows collection, loses nothing."""
+UNROLL_RECV_HWM = 64
+"""Unrolls the learner's PULL buffers per peer; beyond it the peer's PUSH blocks (no loss)."""
+WEIGHTS_HWM = 2
+"""PUB/SUB keep at most 2 weight messages; an older one is dropped, the newest is all that matters."""
+ROUTER_HWM = 1000
+"""Requests/replies queued per peer; with ROUTER_MANDATORY a full or gone peer raises instead of a silent drop."""
+LINGER_MS = 0
+"""On close, pending outgoing messages are discarded at once: shutdown never hangs on a dead peer;
+unrolls in flight at shutdown are lost by design (the run is stopping)."""
+
+
+def context() -> zmq.Context:
+    """The process-wide context (one I/O thread is plenty for our message rates)."""
+    return zmq.Context.instance()
+
+
+def endpoint(host: str, port: int) -> str:
+    return f"tcp://{host}:{port}"
+
+
+def _bind(sock: zmq.Socket, address: str) -> str:
+    """Bind to `address`; a `tcp://host` without port picks a free one. Returns the endpoint."""
+    if address.startswith("tcp://") and address.count(":") == 1:
+        port = sock.bind_to_random_port(address)
+        return f"{address}:{port}"
+    sock.bind(address)
+    return sock.getsockopt_string(zmq.LAST_ENDPOINT)
+
+
+def bind_unroll_pull(address: str) -> tuple[zmq.Socket, str]:
+    """Learner side of the unroll stream."""
+    sock = context().socket(zmq.PULL)
+    sock.setsockopt(zmq.RCVHWM, UNROLL_RECV_HWM)
+    sock.setsockopt(zmq.LINGER, LINGER_MS)
+    return sock, _bind(sock, address)
+
+
+def connect_unroll_push(endpoint_: str) -> zmq.Socket:
+    """Actor side of the unroll stream. `send` blocks when the learner falls behind (backpressure);
+    callers use a send timeout so a vanished learner cannot hang an actor forever."""
+    sock = context().socket(zmq.PUSH)
+    sock.setsockopt(zmq.SNDHWM, UNROLL_SEND_HWM)
+    sock.setsockopt(zmq.LINGER, LINGER_MS)
+    sock.setsockopt(zmq.SNDTIMEO, 5000)  # a blocked send raises zmq.Again after 5 s: counted, retried
+    sock.setsockopt(zmq.IMMEDIATE, 1)  # queue only to a completed connection: nothing parked on a dead pipe
+    sock.connect(endpoint_)
+    return sock
+
+
+def bind_weights_pub(address: str) -> tuple[zmq.Socket, str]:
+    """Learner publishes weights; slow joiners miss messages, hence the snapshot ROUTER."""
+    sock = context().socket(zmq.PUB)
+    sock.setsockopt(zmq.SNDHWM, WEIGHTS_HWM)
+    sock.setsockopt(zmq.LINGER, LINGER_MS)
+    return sock, _bind(sock, address)
+
+
+def connect_weights_sub(endpoint_: str) -> zmq.Socket:
+    sock = context().socket(zmq.SUB)
+    sock.setsockopt(zmq.RCVHWM, WEIGHTS_HWM)
+    sock.setsockopt(zmq.LINGER, LINGER_MS)
+    sock.setsockopt(zmq.SUBSCRIBE, b"")
+    sock.connect(endpoint_)
+    return sock
+
+
+def bind_router(address: str) -> tuple[zmq.Socket, str]:
+    """A request/reply service (the learner's weight snapshots, the sampler)."""
+    sock = context().socket(zmq.ROUTER)
+    sock.setsockopt(zmq.ROUTER_MANDATORY, 1)  # reply to a vanished peer raises EHOSTUNREACH instead of vanishing
+    sock.setsockopt(zmq.SNDHWM, ROUTER_HWM)
+    sock.setsockopt(zmq.RCVHWM, ROUTER_HWM)
+    sock.setsockopt(zmq.LINGER, LINGER_MS)
+    sock.setsockopt(zmq.MAXMSGSIZE, 64 * 1024 * 1024)  # a peer sending more is disconnected by libzmq
+    return sock, _bind(sock, address)
+
+
+def connect_dealer(endpoint_: str) -> zmq.Socket:
+    """A client of a ROUTER service. Lazy Pirate: on a reply timeout the caller closes this
+    socket and makes a new one, so a lost request or a restarted service cannot wedge it."""
+    sock = context().socket(zmq.DEALER)
+    sock.setsockopt(zmq.SNDHWM, ROUTER_HWM)
+    sock.setsockopt(zmq.RCVHWM, ROUTER_HWM)
+    sock.setsockopt(zmq.LINGER, LINGER_MS)
+    sock.connect(endpoint_)
+    return sock

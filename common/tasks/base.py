@@ -1,0 +1,70 @@
+"""The environment contract and the MuJoCo stepping helpers every task shares.
+
+Gymnasium-style: `reset(seed, params, clip_id) -> (obs, info)` and
+`step(action) -> (obs, reward, terminated, truncated, info)`. `terminated` means the episode
+really ended (no bootstrap: a fall); `truncated` means it was cut (time limit, simulator
+divergence: bootstrap from the last observation). The two stay apart all the way into GAE.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import mujoco
+import numpy as np
+
+from common.params import ParamSpace
+
+
+@dataclass(frozen=True)
+class TaskConfig:
+    name: str = "reach"
+    """Registered task name (see `common.tasks.registry.TASKS`)."""
+    control_hz: float = 25.0
+    """Policy decisions per simulated second."""
+    sim_hz: float = 500.0
+    """Physics steps per simulated second; must be a multiple of control_hz."""
+    episode_s: float = 2.0
+    """Time limit of an episode in simulated seconds (reached -> truncated)."""
+
+    @property
+    def substeps(self) -> int:
+        ratio = self.sim_hz / self.control_hz
+        if abs(ratio - round(ratio)) > 1e-9 or ratio < 1:
+            raise ValueError(f"sim_hz={self.sim_hz} must be a positive multiple of control_hz={self.control_hz}")
+        return int(round(ratio))
+
+    @property
+    def episode_steps(self) -> int:
+        return max(1, int(round(self.episode_s * self.control_hz)))
+
+
+class Env(Protocol):
+    obs_dim: int
+    act_dim: int
+    space: ParamSpace
+
+    def reset(self, seed: int | None, params: np.ndarray, clip_id: str | None = None) -> tuple[np.ndarray, dict]: ...
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]: ...
+
+
+_DIVERGENCE_WARNINGS = (
+    mujoco.mjtWarning.mjWARN_BADQACC,
+    mujoco.mjtWarning.mjWARN_BADQVEL,
+    mujoco.mjtWarning.mjWARN_BADQPOS,
+    mujoco.mjtWarning.mjWARN_BADCTRL,
+)
+
+
+def step_physics(model: mujoco.MjModel, data: mujoco.MjData, substeps: int) -> bool:
+    """Advance `substeps` physics steps; return True if MuJoCo diverged.
+
+    NOTE: MuJoCo resets `MjData` silently when the state blows up; the only trace is the
+    warning counters, so they are compared before and after (DESIGN.md "Environments").
+    """
+    before = sum(int(data.warning[w].number) for w in _DIVERGENCE_WARNINGS)
+    mujoco.mj_step(model, data, nstep=substeps)
+    after = sum(int(data.warning[w].number) for w in _DIVERGENCE_WARNINGS)
+    return after != before or not np.isfinite(data.qpos).all()

@@ -1,0 +1,113 @@
+"""The rollout actors as the learner sees them: a pool that starts, keeps running, and stops
+them. `RayActorPool` runs one `RolloutActor` per Ray actor process; `SerialActorPool` holds
+them in this process and steps them from the learner's loop (serial mode)."""
+
+from __future__ import annotations
+
+import logging
+from typing import Protocol
+
+from actors.actor import RolloutActor
+from learner.config import RunConfig
+
+log = logging.getLogger(__name__)
+
+
+class ActorPool(Protocol):
+    def pump(self) -> None: ...
+
+    def alive(self) -> int: ...
+
+    def stats(self) -> list[dict]: ...
+
+    def stop(self) -> None: ...
+
+
+class SerialActorPool:
+    def __init__(self, cfg: RunConfig, endpoints: dict[str, str]):
+        self.actors = [
+            RolloutActor(i, cfg.task, cfg.policy, cfg.actors, endpoints, seed=cfg.seed + 1000 * (i + 1))
+            for i in range(cfg.actors.num_actors)
+        ]
+
+    def pump(self) -> None:
+        """Each actor takes new weights (if any) and sends one unroll."""
+        for actor in self.actors:
+            actor.run_once(weights_timeout_ms=0)
+
+    def alive(self) -> int:
+        return len(self.actors)
+
+    def stats(self) -> list[dict]:
+        return [a.stats() for a in self.actors]
+
+    def stop(self) -> None:
+        for actor in self.actors:
+            actor.close()
+
+
+class RayActorPool:
+    def __init__(self, cfg: RunConfig, endpoints: dict[str, str], ctx) -> None:
+        import ray
+
+        from learner import cluster
+
+        self.ray = ray
+        remote_cls = ray.remote(RolloutActor)
+        opts = cluster.actor_options(ctx, cluster.ROLLOUT_RESOURCE, 1.0, cfg.actors.num_cpus)
+        self.handles = [
+            remote_cls.options(max_concurrency=2, max_restarts=cfg.actor_max_restarts, **opts).remote(
+                i, cfg.task, cfg.policy, cfg.actors, endpoints, cfg.seed + 1000 * (i + 1)
+            )
+            for i in range(cfg.actors.num_actors)
+        ]
+        self.runs = {i: h.run.remote() for i, h in enumerate(self.handles)}
+        self.restarts = 0
+        self.dead: set[int] = set()
+
+    def pump(self) -> None:
+        """Resubmit the loop of an actor whose `run` ended by a crash (Ray restarts the process
+        up to `actor_max_restarts` times; the loop call itself must be made again)."""
+        refs = list(self.runs.values())
+        done, _ = self.ray.wait(refs, num_returns=len(refs), timeout=0)
+        for ref in done:
+            i = next(k for k, v in self.runs.items() if v == ref)
+            try:
+                self.ray.get(ref)
+                self.dead.add(i)  # returned normally: stopped
+                del self.runs[i]
+            except self.ray.exceptions.ActorDiedError:
+                log.error("rollout actor %d died for good", i)
+                self.dead.add(i)
+                del self.runs[i]
+            except self.ray.exceptions.RayError as exc:
+                self.restarts += 1
+                log.warning("rollout actor %d failed (%s); resubmitting its loop", i, type(exc).__name__)
+                self.runs[i] = self.handles[i].run.remote()
+
+    def alive(self) -> int:
+        return len(self.runs)
+
+    def stats(self) -> list[dict]:
+        refs = [self.handles[i].stats.remote() for i in self.runs]
+        try:
+            return self.ray.get(refs, timeout=30)
+        except self.ray.exceptions.RayError as exc:
+            log.warning("could not read actor stats: %s", exc)
+            return []
+
+    def stop(self) -> None:
+        for h in self.handles:
+            try:
+                h.stop.remote()
+            except self.ray.exceptions.RayError:
+                pass
+        try:
+            self.ray.wait(list(self.runs.values()), num_returns=len(self.runs), timeout=15)
+        except self.ray.exceptions.RayError:
+            pass
+        for h in self.handles:
+            try:
+                self.ray.kill(h, no_restart=True)
+            except Exception:  # noqa: BLE001 - already gone
+                pass

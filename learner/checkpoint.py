@@ -1,0 +1,101 @@
+"""Checkpoints: `runs/<name>/ckpt/<iteration>/state.pt`, written atomically, last N kept.
+
+A checkpoint holds tensors and primitives only, so `torch.load(path, weights_only=True)`
+loads it. Atomicity: the file is written and fsynced inside a temporary directory that is
+then renamed into place, so a kill mid-write leaves the previous checkpoints untouched and
+never a half-written `ckpt/<iteration>/`.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+log = logging.getLogger(__name__)
+
+FORMAT = 1
+FILE = "state.pt"
+
+
+class CheckpointError(RuntimeError):
+    """A checkpoint that cannot be used; names the path and why."""
+
+
+def to_checkpointable(obj: Any) -> Any:
+    """numpy arrays -> tensors, recursively, so a sampler state loads with weights_only=True."""
+    if isinstance(obj, np.ndarray):
+        return torch.from_numpy(np.array(obj))
+    if isinstance(obj, dict):
+        return {k: to_checkpointable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(to_checkpointable(v) for v in obj)
+    return obj
+
+
+def from_checkpointable(obj: Any) -> Any:
+    if isinstance(obj, torch.Tensor):
+        return obj.numpy()
+    if isinstance(obj, dict):
+        return {k: from_checkpointable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(from_checkpointable(v) for v in obj)
+    return obj
+
+
+def save(ckpt_dir: Path, iteration: int, state: dict[str, Any], keep: int) -> Path:
+    ckpt_dir.mkdir(parents=True, exist_ok=True)
+    final = ckpt_dir / f"{iteration:08d}"
+    tmp = ckpt_dir / f".tmp-{iteration:08d}-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir()
+    with open(tmp / FILE, "wb") as f:
+        torch.save({"format": FORMAT, **state}, f)
+        f.flush()
+        os.fsync(f.fileno())
+    if final.exists():
+        shutil.rmtree(final)
+    os.replace(tmp, final)
+    dir_fd = os.open(ckpt_dir, os.O_RDONLY)
+    try:
+        os.fsync(dir_fd)
+    finally:
+        os.close(dir_fd)
+    for old in list_checkpoints(ckpt_dir)[:-keep] if keep > 0 else []:
+        shutil.rmtree(old, ignore_errors=True)
+    return final
+
+
+def list_checkpoints(ckpt_dir: Path) -> list[Path]:
+    """Complete checkpoints, oldest first (temporary directories are ignored)."""
+    if not ckpt_dir.is_dir():
+        return []
+    return sorted(p for p in ckpt_dir.iterdir() if p.is_dir() and p.name.isdigit() and (p / FILE).exists())
+
+
+def load(path: Path) -> dict[str, Any]:
+    """Load one checkpoint directory (or its state.pt) with weights_only=True."""
+    file = path / FILE if path.is_dir() else path
+    try:
+        state = torch.load(file, weights_only=True, map_location="cpu")
+    except Exception as exc:  # torch raises many types for truncated or foreign files
+        raise CheckpointError(f"checkpoint {file} cannot be read ({type(exc).__name__}: {exc})") from None
+    if not isinstance(state, dict) or state.get("format") != FORMAT:
+        got = state.get("format") if isinstance(state, dict) else type(state).__name__
+        raise CheckpointError(f"checkpoint {file} has format {got!r}; this version reads format {FORMAT}")
+    return state
+
+
+def load_latest(ckpt_dir: Path) -> tuple[Path, dict[str, Any]] | None:
+    """The newest checkpoint that loads; corrupt ones are reported and skipped."""
+    for path in reversed(list_checkpoints(ckpt_dir)):
+        try:
+            return path, load(path)
+        except CheckpointError as exc:
+            log.error("%s; falling back to the previous checkpoint", exc)
+    return None

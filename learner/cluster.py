@@ -1,0 +1,121 @@
+"""Ray lifecycle: decide which cluster to use (and say so), place the sampler and the rollout
+actors by custom resources, and stop them. Ray never sits on the per-step path: data moves
+over ZeroMQ; Ray starts, places, restarts and stops processes.
+
+Custom resources (set on `ray start --resources=...`, see deploy/README.md):
+    morphmimic_rollout  one unit per rollout actor a node may host
+    morphmimic_sampler  the node that hosts the sampler service
+A cluster without them still works: actors are then spread over the nodes (SPREAD) and a
+warning says so.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import socket
+from dataclasses import dataclass
+
+log = logging.getLogger(__name__)
+
+ROLLOUT_RESOURCE = "morphmimic_rollout"
+SAMPLER_RESOURCE = "morphmimic_sampler"
+
+
+@dataclass(frozen=True)
+class RayContext:
+    kind: str
+    """"cluster" (attached to a running cluster) or "local" (a private instance we started)."""
+    address: str
+    resources: dict[str, float]
+    node_ips: tuple[str, ...]
+
+
+def _gcs_alive(address: str) -> bool:
+    host, _, port = address.rpartition(":")
+    try:
+        with socket.create_connection((host, int(port)), timeout=1.0):
+            return True
+    except (OSError, ValueError):
+        return False
+
+
+def find_running_cluster(explicit: str = "") -> tuple[str, str] | None:
+    """The cluster to attach to and how it was found, or None.
+
+    Only an explicit address, RAY_ADDRESS, or the cluster that `ray start` on this machine
+    recorded (and whose GCS still answers) count: never some other cluster that happens to run.
+    """
+    if explicit:
+        return explicit, "--ray-address"
+    if os.environ.get("RAY_ADDRESS"):
+        return os.environ["RAY_ADDRESS"], "RAY_ADDRESS"
+    try:
+        from ray._private.utils import read_ray_address
+
+        recorded = read_ray_address(None)
+    except Exception:  # noqa: BLE001 - private API: absence means no cluster
+        recorded = None
+    if recorded and _gcs_alive(recorded):
+        return recorded, "`ray start` on this machine"
+    return None
+
+
+def connect(mode: str, explicit_address: str, num_actors: int, actor_cpus: float) -> RayContext:
+    """Attach to a running cluster or start a private local Ray instance, per `mode`."""
+    import ray
+
+    found = None if mode == "local" else find_running_cluster(explicit_address)
+    if found is not None:
+        address, how = found
+        print(f"[morphmimic] attaching to the running Ray cluster at {address} (found via {how})", flush=True)
+        ray.init(address=address, logging_level=logging.WARNING, log_to_driver=True)
+        kind = "cluster"
+    elif mode == "cluster":
+        raise RuntimeError(
+            "--mode cluster: no running Ray cluster found (no --ray-address, no RAY_ADDRESS, no live `ray start` "
+            "on this machine). Start one with `ray start --head` or use --mode local."
+        )
+    else:
+        cpus = max(2, int(num_actors * actor_cpus + 0.999))
+        print(f"[morphmimic] no Ray cluster to attach to: starting a private local Ray instance ({cpus} CPUs)", flush=True)
+        ray.init(
+            address="local",
+            num_cpus=cpus,
+            resources={ROLLOUT_RESOURCE: float(num_actors), SAMPLER_RESOURCE: 1.0},
+            include_dashboard=False,
+            logging_level=logging.WARNING,
+        )
+        kind = "local"
+    resources = {k: float(v) for k, v in ray.cluster_resources().items() if not k.startswith("node:")}
+    ips = tuple(sorted({n["NodeManagerAddress"] for n in ray.nodes() if n.get("Alive")}))
+    print(f"[morphmimic] Ray {kind}: address {ray.get_runtime_context().gcs_address}, nodes {list(ips)}", flush=True)
+    print(f"[morphmimic] resources: {', '.join(f'{k}={v:g}' for k, v in sorted(resources.items()))}", flush=True)
+    return RayContext(kind, ray.get_runtime_context().gcs_address, resources, ips)
+
+
+def bind_host(ctx: RayContext | None, override: str) -> str:
+    """127.0.0.1 when every node is on this machine (or no Ray), else this node's IP."""
+    if override:
+        return override
+    if ctx is None:
+        return "127.0.0.1"
+    import ray
+
+    here = ray.util.get_node_ip_address()
+    return "127.0.0.1" if set(ctx.node_ips) <= {here} else here
+
+
+def actor_options(ctx: RayContext, resource: str, amount: float, num_cpus: float) -> dict:
+    """Ray options that place an actor by custom resource, or spread it when the cluster has none."""
+    if ctx.resources.get(resource, 0.0) > 0:
+        return {"num_cpus": num_cpus, "resources": {resource: amount}}
+    log.warning("cluster has no %r resource: spreading actors over nodes instead (see deploy/README.md)", resource)
+    return {"num_cpus": num_cpus, "scheduling_strategy": "SPREAD"}
+
+
+def shutdown(ctx: RayContext | None) -> None:
+    import ray
+
+    if ctx is not None and ray.is_initialized():
+        ray.shutdown()

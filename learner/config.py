@@ -1,0 +1,126 @@
+"""The run configuration: one frozen dataclass per service, composed into `RunConfig`, plus
+named presets. `python -m learner.main --preset NAME --ppo.lr 1e-4 ...` starts from a preset and
+overrides any field; `--help` lists every option with its docstring (tyro)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from typing import Literal
+
+from actors.config import ActorConfig
+from common.policy import PolicyConfig
+from common.tasks.base import TaskConfig
+from learner.ppo import PPOConfig
+from sampler.config import SamplerConfig
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    name: str = "reach"
+    """Run name: outputs go to `<runs_dir>/<name>/`."""
+    runs_dir: str = "runs"
+    """Parent directory of run directories."""
+    mode: Literal["auto", "cluster", "local", "serial"] = "auto"
+    """auto: attach to a running Ray cluster if one is found (RAY_ADDRESS, or `ray start` on this
+    machine), else start a private local one; cluster: attach or fail; local: always a private
+    instance; serial: one process, no Ray."""
+    ray_address: str = ""
+    """Ray cluster address to attach to (overrides RAY_ADDRESS and auto-detection)."""
+    bind_host: str = ""
+    """Interface the learner's sockets bind; empty: 127.0.0.1 when every node is on this machine,
+    else this node's IP."""
+    total_env_steps: int = 400_000
+    """Step budget: training stops after this many environment steps."""
+    max_iterations: int = 0
+    """Stop after this many policy iterations (0: no limit besides the step budget)."""
+    steps_per_iteration: int = 4096
+    """Transitions per PPO update (Won & Lee 2019: 4096)."""
+    max_policy_lag: int = 2
+    """Unrolls made by weights more than this many versions old are dropped (and counted)."""
+    seed: int = 0
+    """Seed of the learner, actors (seed + actor id) and sampler."""
+    resume: str = "auto"
+    """auto: continue from the newest loadable checkpoint of this run if any; never: start over
+    (refuses to overwrite an existing run's checkpoints); or a path to a checkpoint directory."""
+    checkpoint_every: int = 10
+    """Write a checkpoint every this many iterations (and always at the end)."""
+    keep_checkpoints: int = 3
+    """Keep only the newest this many checkpoints."""
+    value_pairs_per_iteration: int = 512
+    """(parameters, V(s)) pairs sent to the sampler per iteration for the marginal value fit."""
+    vm_plot_every: int = 20
+    """Write the sampler's Vm map PNG every this many iterations (0: only at the end)."""
+    actor_max_restarts: int = 3
+    """Ray restarts a crashed rollout actor up to this many times."""
+    learner_threads: int = 0
+    """Torch threads of the learner; 0: the cores this machine has left after the local actors
+    (at least 1). NOTE: more threads than free cores makes OpenMP spin against the actors."""
+    quiet: bool = False
+    """Write progress only to log.txt and TensorBoard, not the console."""
+    task: TaskConfig = field(default_factory=TaskConfig)
+    policy: PolicyConfig = field(default_factory=PolicyConfig)
+    ppo: PPOConfig = field(default_factory=PPOConfig)
+    actors: ActorConfig = field(default_factory=ActorConfig)
+    sampler: SamplerConfig = field(default_factory=SamplerConfig)
+
+    def __post_init__(self) -> None:
+        positive = ("total_env_steps", "steps_per_iteration", "checkpoint_every", "keep_checkpoints")
+        for name in positive:
+            if getattr(self, name) <= 0:
+                raise ValueError(f"--{name.replace('_', '-')} = {getattr(self, name)} must be > 0")
+        if self.max_policy_lag < 0:
+            raise ValueError(f"--max-policy-lag = {self.max_policy_lag} must be >= 0")
+        if self.ppo.minibatch > self.steps_per_iteration:
+            raise ValueError(
+                f"--ppo.minibatch {self.ppo.minibatch} exceeds --steps-per-iteration {self.steps_per_iteration}"
+            )
+        self.task.substeps  # noqa: B018 - validates sim_hz / control_hz
+
+    @property
+    def resolved_learner_threads(self) -> int:
+        if self.learner_threads > 0:
+            return self.learner_threads
+        import os
+
+        local_actors = self.actors.num_actors * self.actors.num_cpus if self.mode != "cluster" else 0
+        return max(1, int((os.cpu_count() or 1) - local_actors))
+
+    def to_json(self) -> str:
+        return json.dumps(dataclasses.asdict(self), indent=2, sort_keys=True)
+
+    @staticmethod
+    def from_json(text: str) -> "RunConfig":
+        raw = json.loads(text)
+        parts = {"task": TaskConfig, "policy": PolicyConfig, "ppo": PPOConfig, "actors": ActorConfig, "sampler": SamplerConfig}
+        kwargs = {}
+        for k, v in raw.items():
+            if k in parts:
+                sub = parts[k]
+                hints = {f.name: f.type for f in dataclasses.fields(sub)}
+                v = {kk: tuple(vv) if isinstance(vv, list) else vv for kk, vv in v.items() if kk in hints}
+                kwargs[k] = sub(**v)
+            else:
+                kwargs[k] = v
+        return RunConfig(**kwargs)
+
+
+PRESETS: dict[str, tuple[str, RunConfig]] = {
+    "reach": (
+        "two-link arm reaches sampled targets: the backbone's learnable toy task (~2 min on 2 cores)",
+        RunConfig(),
+    ),
+    "reach-tiny": (
+        "a few iterations of reach for smoke tests",
+        RunConfig(
+            name="reach-tiny",
+            total_env_steps=3 * 1024,
+            steps_per_iteration=1024,
+            checkpoint_every=1,
+            actors=ActorConfig(num_actors=2, envs_per_actor=4, unroll_length=32),
+            sampler=SamplerConfig(p_mcmc=2, n_mcmc=200, vm_fit_steps=20),
+            vm_plot_every=1,
+        ),
+    ),
+}

@@ -1,0 +1,121 @@
+"""`Learner`: the networks, the PPO optimizer and the run's counters; turns unrolls into a
+`Batch`, updates, and produces the `WeightsMsg` actors run. No sockets, no Ray."""
+
+from __future__ import annotations
+
+import collections
+from typing import Any
+
+import numpy as np
+import torch
+
+from common import wire
+from common.policy import GaussianPolicy, ValueNet, policy_tensors
+from common.tasks.registry import make_env
+from learner.config import RunConfig
+from learner.ppo import PPO, Batch
+
+
+class Learner:
+    def __init__(self, cfg: RunConfig):
+        self.cfg = cfg
+        torch.manual_seed(cfg.seed)
+        env = make_env(cfg.task, seed=cfg.seed)
+        self.obs_dim, self.act_dim, self.space = env.obs_dim, env.act_dim, env.space
+        self.policy = GaussianPolicy(self.obs_dim, self.act_dim, cfg.policy)
+        self.value = ValueNet(self.obs_dim, cfg.policy)
+        self.ppo = PPO(self.policy, self.value, cfg.ppo)
+        self.generator = torch.Generator().manual_seed(cfg.seed)
+        self.rng = np.random.default_rng(cfg.seed)
+        self.iteration = 0
+        self.env_steps = 0
+        self.policy_version = 0
+        self.episodes = 0
+        self.recent_returns: collections.deque[float] = collections.deque(maxlen=100)
+        self.recent_lengths: collections.deque[int] = collections.deque(maxlen=100)
+        self.counters: collections.Counter[str] = collections.Counter()
+
+    def weights_msg(self) -> wire.WeightsMsg:
+        return wire.WeightsMsg(policy_version=self.policy_version, tensors=policy_tensors(self.policy))
+
+    @staticmethod
+    def batch_from(unrolls: list[wire.UnrollMsg]) -> Batch:
+        """Concatenate `[T, N]` unrolls along the environment axis into one `[T, B]` batch."""
+        cat = lambda name, dtype: torch.as_tensor(  # noqa: E731
+            np.concatenate([getattr(u, name) for u in unrolls], axis=1).astype(dtype, copy=False)
+        )
+        return Batch(
+            obs=cat("obs", np.float32),
+            next_obs=cat("next_obs", np.float32),
+            actions=cat("actions", np.float32),
+            logp=cat("logp", np.float32),
+            rewards=cat("rewards", np.float32),
+            terminated=cat("terminated", np.bool_),
+            truncated=cat("truncated", np.bool_),
+        )
+
+    def record_episodes(self, unrolls: list[wire.UnrollMsg]) -> None:
+        for u in unrolls:
+            self.recent_returns.extend(u.episode_returns)
+            self.recent_lengths.extend(u.episode_lengths)
+            self.episodes += len(u.episode_returns)
+            self.counters["divergences"] += u.divergences
+
+    def value_pairs(self, unrolls: list[wire.UnrollMsg], n: int) -> tuple[np.ndarray, np.ndarray]:
+        """`n` random `(task parameters, V(s))` pairs from these unrolls, for the sampler's
+        marginal value fit (Won & Lee 2019, Algorithm 1)."""
+        obs = np.concatenate([u.obs.reshape(-1, self.obs_dim) for u in unrolls])
+        params = np.concatenate([u.params.reshape(-1, u.params.shape[-1]) for u in unrolls])
+        idx = self.rng.choice(len(obs), size=min(n, len(obs)), replace=False)
+        values = self.ppo.values_of(torch.as_tensor(obs[idx])).numpy()
+        return params[idx].astype(np.float32), values.astype(np.float32)
+
+    def update(self, unrolls: list[wire.UnrollMsg]) -> dict[str, float]:
+        batch = self.batch_from(unrolls)
+        self.ppo.set_progress(self.env_steps / self.cfg.total_env_steps)
+        metrics = self.ppo.update(batch, self.generator)
+        steps = int(batch.rewards.numel())
+        self.env_steps += steps
+        self.iteration += 1
+        self.policy_version += 1
+        self.record_episodes(unrolls)
+        out = {f"losses/{k}": v for k, v in metrics.items()}
+        out["charts/batch_reward"] = float(batch.rewards.mean())
+        if self.recent_returns:
+            out["charts/episode_return"] = float(np.mean(self.recent_returns))
+            out["charts/episode_length"] = float(np.mean(self.recent_lengths))
+        out["charts/episodes"] = float(self.episodes)
+        return out
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "config": self.cfg.to_json(),
+            "iteration": self.iteration,
+            "env_steps": self.env_steps,
+            "policy_version": self.policy_version,
+            "episodes": self.episodes,
+            "policy": self.policy.state_dict(),
+            "value": self.value.state_dict(),
+            "optimizer": self.ppo.optimizer.state_dict(),
+            "lr": self.ppo.lr,
+            "counters": dict(self.counters),
+            "recent_returns": list(self.recent_returns),
+            "recent_lengths": list(self.recent_lengths),
+            "torch_rng": torch.get_rng_state(),
+            "generator": self.generator.get_state(),
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.policy.load_state_dict(state["policy"])
+        self.value.load_state_dict(state["value"])
+        self.ppo.optimizer.load_state_dict(state["optimizer"])
+        self.ppo.lr = float(state["lr"])
+        self.iteration = int(state["iteration"])
+        self.env_steps = int(state["env_steps"])
+        self.policy_version = int(state["policy_version"])
+        self.episodes = int(state["episodes"])
+        self.counters = collections.Counter(state["counters"])
+        self.recent_returns.extend(state["recent_returns"])
+        self.recent_lengths.extend(state["recent_lengths"])
+        torch.set_rng_state(state["torch_rng"])
+        self.generator.set_state(state["generator"])

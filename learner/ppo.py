@@ -1,0 +1,195 @@
+"""Proximal Policy Optimization (Schulman et al. 2017) as pure torch code.
+
+Nothing here knows about sockets, Ray or MuJoCo: `gae` and `ppo_losses` are functions of
+tensors, and `PPO.update` takes a `Batch` of time-major `[T, B]` tensors.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from common.policy import GaussianPolicy, ValueNet
+
+
+@dataclass(frozen=True)
+class PPOConfig:
+    gamma: float = 0.95
+    """Discount (Won & Lee 2019 use 0.95)."""
+    gae_lambda: float = 0.95
+    """GAE lambda (Won & Lee 2019: 0.95)."""
+    clip: float = 0.2
+    """Clipped-surrogate epsilon."""
+    epochs: int = 10
+    """Passes over each batch."""
+    minibatch: int = 128
+    """Transitions per gradient step (Won & Lee 2019: 128)."""
+    lr: float = 3e-4
+    """Adam learning rate at the start of training."""
+    lr_schedule: str = "constant"
+    """constant | linear (to 0 at the step budget) | adaptive (scaled to keep KL near kl_target)."""
+    vf_coef: float = 0.5
+    """Weight of the value loss."""
+    entropy_coef: float = 0.0
+    """Weight of the entropy bonus."""
+    kl_coef: float = 0.0
+    """Weight of the KL(old || new) penalty (UniCon 2020 eq. 7); 0 turns it off."""
+    kl_target: float = 0.01
+    """Target KL per update, for the adaptive learning rate and the early stop."""
+    max_grad_norm: float = 0.5
+    """Global gradient-norm clip."""
+    normalize_advantages: bool = True
+    """Standardize advantages per minibatch."""
+
+
+@dataclass
+class Batch:
+    """Time-major tensors, `T` steps by `B` environment streams."""
+
+    obs: torch.Tensor  # [T, B, obs_dim] raw
+    next_obs: torch.Tensor  # [T, B, obs_dim] raw, before reset
+    actions: torch.Tensor  # [T, B, act_dim]
+    logp: torch.Tensor  # [T, B] behaviour log-probabilities
+    rewards: torch.Tensor  # [T, B]
+    terminated: torch.Tensor  # [T, B] bool
+    truncated: torch.Tensor  # [T, B] bool
+
+
+def gae(
+    rewards: torch.Tensor,
+    values: torch.Tensor,
+    next_values: torch.Tensor,
+    terminated: torch.Tensor,
+    truncated: torch.Tensor,
+    gamma: float,
+    lam: float,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Generalized advantage estimation (Schulman et al. 2016), `[T, B]` in, `[T, B]` out.
+
+    `next_values[t]` is V of the observation after step t, before any reset. A terminated
+    step does not bootstrap (`delta = r - V`); a truncated one does (`delta = r + gamma V' - V`).
+    Both end the recursion, since the next row belongs to a new episode. The last row
+    bootstraps from `next_values[-1]` through its delta only.
+
+    Returns (advantages, returns = advantages + values).
+    """
+    not_term = (~terminated).to(values.dtype)
+    episode_continues = (~(terminated | truncated)).to(values.dtype)
+    deltas = rewards + gamma * next_values * not_term - values
+    adv = torch.zeros_like(values)
+    running = torch.zeros_like(values[0])
+    for t in range(values.shape[0] - 1, -1, -1):
+        running = deltas[t] + gamma * lam * episode_continues[t] * running
+        adv[t] = running
+    return adv, adv + values
+
+
+def ppo_losses(
+    dist: torch.distributions.Normal,
+    actions: torch.Tensor,
+    old_logp: torch.Tensor,
+    advantages: torch.Tensor,
+    values: torch.Tensor,
+    returns: torch.Tensor,
+    cfg: PPOConfig,
+) -> dict[str, torch.Tensor]:
+    """Clipped surrogate (Schulman 2017 eq. 7), value MSE, entropy, KL(old||new) penalty.
+
+    Shapes: `actions [M, act_dim]`, everything else `[M]`. The KL uses the k3 estimator
+    `(r - 1) - log r` with `r = pi_new / pi_old` on samples from the old policy: unbiased and
+    non-negative, and it needs no old distribution parameters on the wire.
+    """
+    logp = dist.log_prob(actions).sum(-1)
+    log_ratio = logp - old_logp
+    ratio = log_ratio.exp()
+    surrogate = torch.min(ratio * advantages, ratio.clamp(1 - cfg.clip, 1 + cfg.clip) * advantages)
+    policy_loss = -surrogate.mean()
+    value_loss = 0.5 * (values - returns).square().mean()
+    entropy = dist.entropy().sum(-1).mean()
+    kl = ((ratio - 1) - log_ratio).mean()
+    total = policy_loss + cfg.vf_coef * value_loss - cfg.entropy_coef * entropy + cfg.kl_coef * kl
+    clip_frac = ((ratio - 1).abs() > cfg.clip).float().mean()
+    return {"total": total, "policy": policy_loss, "value": value_loss, "entropy": entropy, "kl": kl, "clip_frac": clip_frac}
+
+
+class PPO:
+    """Owns the policy, the value net and one Adam optimizer over both."""
+
+    def __init__(self, policy: GaussianPolicy, value: ValueNet, cfg: PPOConfig):
+        self.policy, self.value, self.cfg = policy, value, cfg
+        self.optimizer = torch.optim.Adam([*policy.parameters(), *value.parameters()], lr=cfg.lr)
+        self.lr = cfg.lr
+        self.skipped_updates = 0
+        """Minibatches whose loss was not finite (skipped, never applied)."""
+
+    def set_progress(self, fraction_done: float) -> None:
+        """Apply the learning-rate schedule for a run that is `fraction_done` through its budget."""
+        if self.cfg.lr_schedule == "linear":
+            self.lr = self.cfg.lr * max(0.0, 1.0 - fraction_done)
+        elif self.cfg.lr_schedule not in ("constant", "adaptive"):
+            raise ValueError(f"lr_schedule {self.cfg.lr_schedule!r} is not one of constant | linear | adaptive")
+        for group in self.optimizer.param_groups:
+            group["lr"] = self.lr
+
+    @torch.no_grad()
+    def values_of(self, obs_raw: torch.Tensor) -> torch.Tensor:
+        return self.value(self.policy.normalizer(obs_raw))
+
+    def update(self, batch: Batch, generator: torch.Generator | None = None) -> dict[str, float]:
+        """Normalizer update, GAE, then `epochs` passes of minibatch gradient steps."""
+        cfg = self.cfg
+        self.policy.normalizer.update(batch.obs.reshape(-1, batch.obs.shape[-1]))
+        values = self.values_of(batch.obs)
+        next_values = self.values_of(batch.next_obs)
+        adv, returns = gae(batch.rewards, values, next_values, batch.terminated, batch.truncated, cfg.gamma, cfg.gae_lambda)
+
+        flat = lambda x: x.reshape(-1, *x.shape[2:])  # noqa: E731
+        obs, actions, old_logp = flat(batch.obs), flat(batch.actions), flat(batch.logp)
+        adv, returns = flat(adv), flat(returns)
+        n = obs.shape[0]
+        sums: dict[str, float] = {}
+        steps = 0
+        for _ in range(cfg.epochs):
+            order = torch.randperm(n, generator=generator)
+            for start in range(0, n - cfg.minibatch + 1, cfg.minibatch):
+                idx = order[start : start + cfg.minibatch]
+                a = adv[idx]
+                if cfg.normalize_advantages:
+                    a = (a - a.mean()) / (a.std() + 1e-8)
+                dist = self.policy.distribution(obs[idx])
+                v = self.value(self.policy.normalizer(obs[idx]))
+                losses = ppo_losses(dist, actions[idx], old_logp[idx], a, v, returns[idx], cfg)
+                if not torch.isfinite(losses["total"]):
+                    self.skipped_updates += 1
+                    continue
+                self.optimizer.zero_grad(set_to_none=True)
+                losses["total"].backward()
+                grad_norm = nn.utils.clip_grad_norm_([*self.policy.parameters(), *self.value.parameters()], cfg.max_grad_norm)
+                self.optimizer.step()
+                for k, v_ in losses.items():
+                    sums[k] = sums.get(k, 0.0) + v_.item()
+                sums["grad_norm"] = sums.get("grad_norm", 0.0) + float(grad_norm)
+                steps += 1
+        metrics = {k: v / max(steps, 1) for k, v in sums.items()}
+        if cfg.lr_schedule == "adaptive" and steps:
+            # Schulman et al.'s adaptive rule, applied to the step size rather than a KL weight.
+            kl = metrics["kl"]
+            if kl > 2.0 * cfg.kl_target:
+                self.lr = max(self.lr / 1.5, 1e-6)
+            elif kl < 0.5 * cfg.kl_target:
+                self.lr = min(self.lr * 1.5, 1e-2)
+            self.set_progress(0.0)
+        metrics.update(
+            lr=self.lr,
+            explained_variance=_explained_variance(flat(values), returns),
+            skipped_updates=float(self.skipped_updates),
+            log_std=self.policy.log_std.detach().mean().item(),
+        )
+        return metrics
+
+
+def _explained_variance(pred: torch.Tensor, target: torch.Tensor) -> float:
+    var = target.var()
+    return float("nan") if var < 1e-12 else float(1 - (target - pred).var() / var)

@@ -1,0 +1,98 @@
+"""The learner's handle on the sampler service: starts it (a Ray actor in cluster and local
+modes, a thread in serial mode), talks to it through the same ZeroMQ client as the actors, and
+stops it. A sampler that does not answer costs the learner its metrics for that iteration,
+never the run."""
+
+from __future__ import annotations
+
+import logging
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from common.params import ParamSpace
+from common.rpc import ServiceUnavailable
+from common.wire import WireError
+from sampler.client import SamplerClient
+from sampler.config import SamplerConfig
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class SamplerHandle:
+    endpoint: str
+    client: SamplerClient
+    config: SamplerConfig
+    space: ParamSpace
+    clips: Sequence[tuple[str, str]]
+    ray_handle: Any = None
+    thread: threading.Thread | None = None
+    stop_event: threading.Event | None = None
+    failures: int = 0
+
+    @staticmethod
+    def start(config: SamplerConfig, space: ParamSpace, clips: Sequence[tuple[str, str]], ctx) -> "SamplerHandle":
+        if ctx is None:
+            from sampler.actor import start_in_thread
+
+            service, thread, stop_event = start_in_thread(config, space, clips)
+            endpoint = service.endpoint
+            return SamplerHandle(endpoint, SamplerClient(endpoint), config, space, clips, thread=thread, stop_event=stop_event)
+        import ray
+
+        from learner import cluster
+        from sampler.actor import SamplerActor
+
+        opts = cluster.actor_options(ctx, cluster.SAMPLER_RESOURCE, 0.01, 0.0)
+        opts.pop("scheduling_strategy", None)
+        handle = ray.remote(SamplerActor).options(max_restarts=-1, **opts).remote(config, space, list(clips))
+        endpoint = ray.get(handle.endpoint.remote(), timeout=120)
+        return SamplerHandle(endpoint, SamplerClient(endpoint), config, space, clips, ray_handle=handle)
+
+    def _call(self, what: str, fn, default):
+        try:
+            return fn()
+        except (ServiceUnavailable, WireError) as exc:
+            self.failures += 1
+            log.warning("sampler %s failed (%s); continuing without it this iteration", what, exc)
+            return default
+
+    def report_and_tick(self, params: np.ndarray, values: np.ndarray, iteration: int) -> dict[str, float]:
+        self._call("report", lambda: self.client.report(params, values), None)
+        stats = self._call("tick", lambda: self.client.tick(iteration), {})
+        out = {f"sampler/{k}": float(v) for k, v in stats.items()}
+        out["sampler/learner_call_failures"] = float(self.failures)
+        return out
+
+    def state(self) -> dict[str, Any] | None:
+        return self._call("get_state", self.client.get_state, None)
+
+    def plot(self, path: Path) -> None:
+        """Write the Vm map PNG (Won & Lee 2019, Figure 6) from the service's current state."""
+        state = self.state()
+        if state is None:
+            return
+        try:
+            from sampler.plot import plot_state
+
+            plot_state(self.config, self.space, self.clips, state, path)
+        except Exception as exc:  # noqa: BLE001 - a plot must never stop training
+            log.warning("could not plot the marginal value map: %s", exc)
+
+    def stop(self) -> None:
+        self.client.close()
+        if self.stop_event is not None and self.thread is not None:
+            self.stop_event.set()
+            self.thread.join(timeout=5)
+        if self.ray_handle is not None:
+            import ray
+
+            try:
+                ray.get(self.ray_handle.stop.remote(), timeout=10)
+            except Exception:  # noqa: BLE001 - already gone
+                pass
+            ray.kill(self.ray_handle, no_restart=True)
