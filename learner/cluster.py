@@ -61,6 +61,19 @@ def find_running_cluster(explicit: str = "") -> tuple[str, str] | None:
     return None
 
 
+def _use_token_auth_if_available() -> None:
+    """Ray >= 2.5x starts `ray start` clusters with token authentication and keeps the token in
+    ~/.ray/auth_token, but a driver attaching to them sends it only in token mode."""
+    if os.environ.get("RAY_AUTH_MODE"):
+        return
+    try:
+        from ray._private.authentication.authentication_token_setup import maybe_enable_token_auth_if_token_available
+
+        maybe_enable_token_auth_if_token_available(warn_if_disabled=False)
+    except Exception:  # noqa: BLE001 - older Ray without token auth: nothing to do
+        pass
+
+
 def connect(mode: str, explicit_address: str, num_actors: int, actor_cpus: float) -> RayContext:
     """Attach to a running cluster or start a private local Ray instance, per `mode`."""
     import ray
@@ -69,6 +82,7 @@ def connect(mode: str, explicit_address: str, num_actors: int, actor_cpus: float
     if found is not None:
         address, how = found
         print(f"[morphmimic] attaching to the running Ray cluster at {address} (found via {how})", flush=True)
+        _use_token_auth_if_available()
         ray.init(address=address, logging_level=logging.WARNING, log_to_driver=True)
         kind = "cluster"
     elif mode == "cluster":

@@ -31,6 +31,9 @@ class RunConfig:
     bind_host: str = ""
     """Interface the learner's sockets bind; empty: 127.0.0.1 when every node is on this machine,
     else this node's IP."""
+    port_base: int = 0
+    """0: every socket binds a free port (printed at start). N: the learner binds N (unrolls),
+    N+1 (weights PUB), N+2 (weight snapshots) and the sampler N+3: for firewalled clusters."""
     total_env_steps: int = 400_000
     """Step budget: training stops after this many environment steps."""
     max_iterations: int = 0

@@ -79,7 +79,7 @@ class SamplerHandle:
         try:
             from sampler.plot import plot_state
 
-            plot_state(self.config, self.space, self.clips, state, path)
+            plot_state(state, self.space, path, params=self.config.plot_params or None)
         except Exception as exc:  # noqa: BLE001 - a plot must never stop training
             log.warning("could not plot the marginal value map: %s", exc)
 

@@ -6,6 +6,7 @@ weights, logs, checkpoints, and on the step budget, Ctrl-C or SIGTERM stops ever
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 import signal
 import threading
@@ -113,11 +114,13 @@ def train(cfg: RunConfig) -> int:
         learner.load_state_dict(state)
         out.line(f"[morphmimic] resumed {path} at iteration {learner.iteration}, {learner.env_steps:,d} env steps")
     host = cluster.bind_host(ctx, cfg.bind_host)
-    transport = LearnerTransport(host, learner.obs_dim, learner.act_dim, learner.space.dim)
+    transport = LearnerTransport(host, learner.obs_dim, learner.act_dim, learner.space.dim, cfg.port_base)
     sampler = pool = None
     last_saved = learner.iteration if resume_from is not None else -1
     try:
-        sampler_cfg = dataclasses.replace(cfg.sampler, host=host, seed=cfg.sampler.seed + cfg.seed)
+        sampler_cfg = dataclasses.replace(
+            cfg.sampler, host=host if host == "127.0.0.1" or ctx is None else "auto", seed=cfg.sampler.seed + cfg.seed, port=cfg.port_base + 3 if cfg.port_base else cfg.sampler.port
+        )
         sampler = SamplerHandle.start(sampler_cfg, task_space(cfg.task), task_clips(cfg.task), ctx)
         if resume_from is not None and resume_from[1].get("sampler"):
             sampler.client.set_state(checkpoint.from_checkpointable(resume_from[1]["sampler"]))
@@ -159,6 +162,7 @@ def train(cfg: RunConfig) -> int:
         return 0
     finally:
         if pool is not None:
+            (run_dir / "actors.json").write_text(json.dumps(pool.stats(), indent=2) + "\n")
             pool.stop()
         if sampler is not None:
             sampler.stop()

@@ -20,10 +20,12 @@ log = logging.getLogger(__name__)
 
 
 class LearnerTransport:
-    def __init__(self, host: str, obs_dim: int, act_dim: int, n_params: int):
-        self.pull, unrolls = sockets.bind_unroll_pull(f"tcp://{host}")
-        self.pub, weights_pub = sockets.bind_weights_pub(f"tcp://{host}")
-        router, weights_router = sockets.bind_router(f"tcp://{host}")
+    def __init__(self, host: str, obs_dim: int, act_dim: int, n_params: int, port_base: int = 0):
+        """`port_base` 0 binds free ports; else unrolls on port_base, weights PUB on +1, snapshots on +2."""
+        addr = lambda i: f"tcp://{host}:{port_base + i}" if port_base else f"tcp://{host}"  # noqa: E731
+        self.pull, unrolls = sockets.bind_unroll_pull(addr(0))
+        self.pub, weights_pub = sockets.bind_weights_pub(addr(1))
+        router, weights_router = sockets.bind_router(addr(2))
         self.endpoints = {"unrolls": unrolls, "weights_pub": weights_pub, "weights_router": weights_router}
         self.snapshots = RouterServer(router, self._on_request, name="weights")
         self.dims = (obs_dim, act_dim, n_params)

@@ -1,0 +1,53 @@
+"""Cluster mode on the local two-worker test cluster (a head and two worker nodes on this
+machine, as `deploy/local_cluster.py` starts them): the learner attaches, places one rollout
+actor per worker node by custom resource, and trains."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import pytest
+
+from actors.config import ActorConfig
+from learner import checkpoint
+from learner.config import PRESETS
+from learner.train import train
+
+pytestmark = pytest.mark.cluster
+
+
+@pytest.fixture(scope="module")
+def two_worker_cluster():
+    from deploy.local_cluster import start
+
+    cluster = start(rollout_per_worker=1, cpus_per_worker=1)
+    yield cluster
+    cluster.shutdown()
+
+
+def test_actors_run_on_both_workers_and_iterations_complete(two_worker_cluster, tmp_path):
+    cluster = two_worker_cluster
+    worker_ids = {node.node_id for node in cluster.worker_nodes}
+    cfg = dataclasses.replace(
+        PRESETS["reach-tiny"][1], runs_dir=str(tmp_path), quiet=True, mode="cluster",
+        ray_address=cluster.address, max_iterations=3, total_env_steps=10**6,
+        actors=ActorConfig(num_actors=2, envs_per_actor=4, unroll_length=32),
+    )
+    assert train(cfg) == 0
+    run = tmp_path / "reach-tiny"
+    log = (run / "log.txt").read_text()
+    assert "mode cluster" in log
+    assert checkpoint.load_latest(run / "ckpt")[1]["iteration"] == 3
+    actors = json.loads((run / "actors.json").read_text())
+    assert {a["node_id"] for a in actors} == worker_ids, (actors, worker_ids)
+    assert all(a["env_steps"] > 0 for a in actors)
+
+
+def test_cluster_mode_without_a_cluster_says_so(tmp_path, monkeypatch):
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    from learner import cluster
+
+    monkeypatch.setattr(cluster, "find_running_cluster", lambda explicit="": None)
+    with pytest.raises(RuntimeError, match="no running Ray cluster found"):
+        cluster.connect("cluster", "", 1, 1.0)
