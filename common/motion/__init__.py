@@ -1,0 +1,30 @@
+"""The motion library (issue 4): canonical clips, importers, kinematics, retargeting to any
+body shape, procedural gaits, the dataset manifest and its UniCon split.
+
+    from common.motion import MotionLibrary
+    lib = MotionLibrary()                          # clips of common/data/clips.json
+    ref = lib.play("humanoid3d_walk", character)   # a CharacterMotion on this shape
+    s = ref.state(t)   # s.qpos (nq,), s.qvel (nv,), s.end_effectors (E, 3), s.com, s.com_vel
+    ref.qpos(t + 0.5)  # reference posture ahead (Won & Lee's sensory state)
+
+Modules: clip (format), quat, kinematics, import_deepmimic, bvh + import_bvh, qpos_map (clip ->
+a model's qpos), reference (CharacterMotion), retarget, procedural, manifest, check, view, cli.
+"""
+
+import os
+
+# NOTE: MuJoCo picks its GL backend when first imported and `view` renders offscreen; EGL works
+# headless on these machines (osmesa did not). Only a default: an explicit MUJOCO_GL wins.
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+from common.motion.clip import Clip, load_clip  # noqa: E402
+from common.motion.errors import ClipError  # noqa: E402
+from common.motion.library import MotionLibrary, import_source  # noqa: E402
+from common.motion.manifest import Manifest, Split, load_manifest, unicon_split  # noqa: E402
+from common.motion.reference import CharacterMotion, ReferenceState  # noqa: E402
+from common.motion.retarget import RetargetConfig, play_on  # noqa: E402
+
+__all__ = [
+    "CharacterMotion", "Clip", "ClipError", "Manifest", "MotionLibrary", "ReferenceState", "RetargetConfig", "Split",
+    "import_source", "load_clip", "load_manifest", "play_on", "unicon_split",
+]

@@ -1,0 +1,98 @@
+"""Per-clip sanity report on a character: feet against the floor, joint limits, rate, length.
+
+What a user wants to know before training on a clip (issue 4): does it fit the body (feet
+neither sink nor float once retargeted), does it ask joints for angles the character cannot
+reach, and is its rate and length sensible.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from common.motion.reference import CharacterMotion
+from common.motion.retarget import foot_heights
+
+AIRBORNE_M = 0.02
+"""Both feet higher than this: the frame counts as airborne (jump, flip) or floating."""
+
+
+@dataclass(frozen=True)
+class ClipReport:
+    """Findings for one clip on one character. Lengths in m, angles in rad."""
+
+    name: str
+    character: str
+    fps: float
+    frames: int
+    duration_s: float
+    loop: bool
+    penetration_m: float
+    """Deepest a foot goes below the floor (0 if never)."""
+    stance_float_m: float
+    """Highest the lower foot gets while at least one foot is in a contact phase (0 if never)."""
+    airborne_frac: float
+    """Share of frames with both feet above AIRBORNE_M."""
+    limit_violations: int
+    """Number of (frame, DOF) pairs outside the character's joint range / PD target range."""
+    worst_limit: str
+    """'joint: excess rad' of the worst violation, or '-'."""
+
+    def line(self, raw: "ClipReport | None" = None) -> str:
+        """One human-readable line (what `morphmimic motion check` prints); with `raw` (the
+        clip played as recorded) its foot figures come first, then these (retargeted)."""
+        feet = f"pen {100 * self.penetration_m:4.1f} float {100 * self.stance_float_m:4.1f} cm"
+        if raw is not None:
+            feet = f"raw pen {100 * raw.penetration_m:4.1f} float {100 * raw.stance_float_m:4.1f} -> {feet}"
+        return (f"{self.name:<24} {self.character:<8} {self.fps:5.1f} Hz {self.frames:4d} fr {self.duration_s:5.2f} s "
+                f"{'loop' if self.loop else 'once'}  {feet}  air {100 * self.airborne_frac:3.0f}%  "
+                f"limits {self.limit_violations:4d} ({self.worst_limit})")
+
+
+def _dof_ranges(model: mujoco.MjModel) -> list[tuple[str, int, int, float, float]]:
+    """(name, joint id, axis or -1, lo, hi): hinge limits, and the PD target range of each
+    ball-joint axis (the characters give ball joints no limit, only `ctrlrange`)."""
+    out = []
+    for j in range(1, model.njnt):
+        if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE and model.jnt_limited[j]:
+            out.append((model.joint(j).name, j, -1, *model.jnt_range[j]))
+    for a in range(model.nu):
+        if model.actuator_trntype[a] != mujoco.mjtTrn.mjTRN_JOINT or not model.actuator_ctrllimited[a]:
+            continue
+        j = int(model.actuator_trnid[a, 0])
+        if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_BALL:
+            axis = int(np.argmax(np.abs(model.actuator_gear[a, :3])))
+            out.append((f"{model.joint(j).name}.{'xyz'[axis]}", j, axis, *model.actuator_ctrlrange[a]))
+    return out
+
+
+def check_motion(motion: CharacterMotion, foot_geoms: tuple[str, ...], contact_flags: np.ndarray | None = None) -> ClipReport:
+    """Report on a clip played on a character (see ClipReport)."""
+    model, clip = motion.model, motion.clip
+    qpos = motion.qpos_frames
+    if foot_geoms:
+        h, _ = foot_heights(model, qpos, foot_geoms)
+        lower = h.min(axis=1)
+        penetration = max(0.0, -float(h.min()))
+        stance = contact_flags.any(axis=1) if contact_flags is not None else np.ones(len(h), bool)
+        stance_float = max(0.0, float(lower[stance].max())) if stance.any() else 0.0
+        airborne = float(np.mean(lower > AIRBORNE_M))
+    else:
+        penetration = stance_float = airborne = 0.0
+    count, worst, worst_name = 0, 0.0, "-"
+    from scipy.spatial.transform import Rotation
+
+    for name, j, axis, lo, hi in _dof_ranges(model):
+        adr = model.jnt_qposadr[j]
+        if axis < 0:
+            values = qpos[:, adr]
+        else:
+            values = Rotation.from_quat(qpos[:, adr:adr + 4], scalar_first=True).as_rotvec()[:, axis]
+        excess = np.maximum(lo - values, values - hi)
+        count += int(np.sum(excess > 1e-6))
+        if excess.max() > worst:
+            worst, worst_name = float(excess.max()), f"{name}: +{excess.max():.2f}"
+    return ClipReport(clip.name, clip.character, clip.fps, clip.num_frames, clip.duration_s, clip.loop,
+                      penetration, stance_float, airborne, count, worst_name)

@@ -1,0 +1,183 @@
+"""`morphmimic motion import|view|check`: the motion library from the shell.
+
+    morphmimic motion import --all --procedural         # manifest + gaits -> common/data/clips/
+    morphmimic motion import path/to/clip.bvh --out clips/
+    morphmimic motion view humanoid3d_walk --shape leg_length=1.6 --parameterization leg_arm --out walk.png
+    morphmimic motion check --all                       # one line per clip
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from common.motion.errors import ClipError  # importing common.motion sets MUJOCO_GL=egl if unset
+
+
+def _parse_shape(items: list[str]) -> dict[str, float] | None:
+    if not items:
+        return None
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        try:
+            out[name] = float(value)
+        except ValueError:
+            raise SystemExit(f"morphmimic motion: --shape expects name=value, got {item!r}") from None
+        if not sep:
+            raise SystemExit(f"morphmimic motion: --shape expects name=value, got {item!r}")
+    return out
+
+
+def _resolve(lib, spec: str):
+    """A clip from a manifest id or a file path."""
+    from common.motion.library import import_source
+
+    if spec in lib.ids:
+        return lib.clip(spec)
+    if Path(spec).exists():
+        return import_source(spec)
+    raise ClipError(f"neither a clip id of the manifest nor a file; ids: {', '.join(lib.ids)}", path=spec)
+
+
+def _character(preset: str, args):
+    from common.characters import load_character
+
+    shape = _parse_shape(args.shape)
+    if args.random_shape is not None:
+        base = load_character(preset, parameterization=args.parameterization)
+        shape = base.space.sample(np.random.default_rng(args.random_shape))
+    return load_character(preset, shape=shape, parameterization=args.parameterization)
+
+
+def cmd_import(args) -> int:
+    from common.motion.library import CLIPS_DIR, MotionLibrary, import_entry, import_source
+
+    out_dir = Path(args.out) if args.out else CLIPS_DIR
+    jobs = []
+    if args.all:
+        lib = MotionLibrary()
+        jobs += [(e.id, lambda e=e: import_entry(e)) for e in lib.manifest.entries]
+    if args.procedural:
+        from common.characters import load_character
+        from common.motion.procedural import GENERATORS
+
+        jobs += [(f"procedural/{p}", lambda p=p, g=g: g(load_character(p))) for p, g in GENERATORS.items()]
+    for src in args.sources:
+        jobs.append((Path(src).stem, lambda s=src: import_source(s, fps=args.fps, skeleton=args.skeleton, label=args.label)))
+    if not jobs:
+        print("morphmimic motion import: give source files, --all or --procedural", file=sys.stderr)
+        return 2
+    for clip_id, make in jobs:
+        clip = make()
+        path = clip.save(out_dir / f"{clip_id}.npz")
+        try:
+            path = path.relative_to(Path.cwd())
+        except ValueError:
+            pass
+        print(f"{path}: {clip.num_frames} frames at {clip.fps:.1f} Hz ({clip.duration_s:.2f} s), "
+              f"{len(clip.joint_names)} joints for {clip.character!r}, label {clip.label}")
+    return 0
+
+
+def cmd_view(args) -> int:
+    from common.motion.library import MotionLibrary
+    from common.motion.retarget import play_on
+    from common.motion.view import write_animation, write_strip
+
+    lib = MotionLibrary()
+    clip = _resolve(lib, args.clip)
+    preset = args.character or clip.character
+    ch = _character(preset, args)
+    motion = play_on(clip, ch, lib.base_character(preset)) if args.retarget else None
+    if motion is None:
+        from common.motion.reference import CharacterMotion
+
+        motion = CharacterMotion.from_clip(clip, ch.model, tuple(ch.end_effector_bodies))
+    out = Path(args.out)
+    if out.suffix.lower() == ".png":
+        write_strip(motion, out, n_frames=args.frames, seconds=args.seconds)
+    else:
+        write_animation(motion, out, fps=args.fps, seconds=args.seconds)
+    print(f"{out}: {clip.name} on {ch.summary()}")
+    return 0
+
+
+def cmd_check(args) -> int:
+    from common.motion.check import check_motion
+    from common.motion.library import MotionLibrary
+    from common.motion.reference import CharacterMotion
+    from common.motion.retarget import character_feet, contact_phases, play_on
+
+    lib = MotionLibrary()
+    specs = list(args.clips) + (list(lib.ids) if args.all else [])
+    specs = list(dict.fromkeys(specs))
+    if not specs:
+        print("morphmimic motion check: give clip ids / files or --all", file=sys.stderr)
+        return 2
+    failed = 0
+    print("clip, character, rate, length; feet: deepest below floor (pen) and lower foot above it in contact phases "
+          "(float), as recorded -> retargeted; frames with both feet up; (frame, DOF) pairs outside the joint range")
+    for spec in specs:
+        try:
+            clip = _resolve(lib, spec)
+            preset = args.character or clip.character
+            ch = _character(preset, args) if (args.shape or args.random_shape is not None) else lib.base_character(preset)
+            base = lib.base_character(preset)
+            feet = character_feet(ch)
+            contacts = contact_phases(clip, base.model, feet, lib.cfg) if feet else None
+            flags = None if contacts is None else contacts.flags
+            motion = play_on(clip, ch, base, lib.cfg, contacts)
+            raw = check_motion(CharacterMotion.from_clip(clip, ch.model), feet, flags)
+            print(check_motion(motion, feet, flags).line(raw))
+        except ClipError as exc:
+            failed += 1
+            print(f"{spec:<26} ERROR {exc}")
+    return 1 if failed else 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="morphmimic motion", description="import, view and check motion clips")
+    sub = p.add_subparsers(dest="cmd", required=True)
+    imp = sub.add_parser("import", help="convert DeepMimic JSON / BVH to canonical .npz clips")
+    imp.add_argument("sources", nargs="*", help="motion files (.txt/.json DeepMimic, .bvh)")
+    imp.add_argument("--all", action="store_true", help="every clip of common/data/clips.json")
+    imp.add_argument("--procedural", action="store_true", help="also write the quadruped/fish/manta gaits")
+    imp.add_argument("--out", help="output directory (default common/data/clips/)")
+    imp.add_argument("--fps", type=float, help="resample to this rate in Hz (default: the file's)")
+    imp.add_argument("--skeleton", choices=("mass", "cmu"), help="BVH name map (default: guessed)")
+    imp.add_argument("--label", default="root", help="hierarchical class label for files given by path")
+    for name, help_ in (("view", "render a clip kinematically to a PNG strip (.png) or animation (.gif/.mp4)"),
+                        ("check", "per clip: feet vs floor, joint-range violations, rate, length")):
+        sp = sub.add_parser(name, help=help_)
+        if name == "view":
+            sp.add_argument("clip", help="manifest id (e.g. humanoid3d_walk) or a motion file")
+            sp.add_argument("--out", required=True, help="output .png (strip) or .gif/.mp4")
+            sp.add_argument("--frames", type=int, default=6, help="poses in a PNG strip")
+            sp.add_argument("--fps", type=float, default=30.0, help="animation frame rate")
+            sp.add_argument("--seconds", type=float, help="time span shown (default the clip; longer loops)")
+            sp.add_argument("--no-retarget", dest="retarget", action="store_false", help="play the clip as recorded")
+        else:
+            sp.add_argument("clips", nargs="*", help="manifest ids or motion files")
+            sp.add_argument("--all", action="store_true", help="every clip of the manifest")
+        sp.add_argument("--character", help="preset (default: the clip's own character)")
+        sp.add_argument("--parameterization", default="random", help="shape parameterization of the preset")
+        sp.add_argument("--shape", action="append", default=[], help="name=value shape factor (repeatable)")
+        sp.add_argument("--random-shape", type=int, metavar="SEED", help="a random shape from this seed")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
+    try:
+        return {"import": cmd_import, "view": cmd_view, "check": cmd_check}[args.cmd](args)
+    except ClipError as exc:
+        print(f"morphmimic motion {args.cmd}: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

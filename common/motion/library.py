@@ -1,0 +1,109 @@
+"""`MotionLibrary`: the clips of the manifest, loaded once, played on any character shape.
+
+    lib = MotionLibrary()                              # manifest = common/data/clips.json
+    ref = lib.play("humanoid3d_walk", character)       # retargeted to this shape (retarget.py)
+    s = ref.state(t)                                   # qpos, qvel, end effectors, COM at t s
+
+Clips come from the canonical `.npz` files under `common/data/clips/` when present
+(`morphmimic motion import --all` writes them), else from the raw source files, imported on
+first use. Contact phases are computed once per (clip, preset) on the base character and
+reused for every shape.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from common.motion.clip import Clip, load_clip
+from common.motion.errors import ClipError
+from common.motion.import_bvh import load_bvh
+from common.motion.import_deepmimic import load_deepmimic
+from common.motion.manifest import DATA_DIR, ClipEntry, Manifest, load_manifest
+from common.motion.reference import CharacterMotion
+from common.motion.retarget import ContactPhases, RetargetConfig, character_feet, contact_phases, play_on
+
+CLIPS_DIR = DATA_DIR / "clips"
+LICENSES = {"deepmimic_json": "MIT (DeepMimic, Peng et al.)", "bvh": "Apache-2.0 (MASS, Lee et al.)"}
+
+
+def import_source(path: str | Path, *, name: str | None = None, label: str = "root", fps: float | None = None,
+                  skeleton: str | None = None, license: str = "") -> Clip:
+    """Import any supported file by its extension: DeepMimic `.txt`/`.json`, `.bvh`
+    (skeleton 'mass' or 'cmu', guessed from the file's root joint when None), canonical `.npz`."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".npz":
+        return load_clip(path)
+    if suffix in (".txt", ".json"):
+        return load_deepmimic(path, fps=fps, name=name, label=label, license=license or "MIT")
+    if suffix == ".bvh":
+        if skeleton is None:
+            skeleton = "mass" if "Character1_Hips" in path.read_text(errors="replace")[:2000] else "cmu"
+        return load_bvh(path, skeleton=skeleton, name=name, label=label, fps=fps, license=license)
+    raise ClipError(f"unknown motion file type {suffix!r}; expected .txt/.json (DeepMimic), .bvh or .npz", path=path)
+
+
+def import_entry(entry: ClipEntry, data_dir: Path = DATA_DIR) -> Clip:
+    """Import a manifest entry's raw source with its label, loop flag and license."""
+    clip = import_source(data_dir / entry.path, name=entry.id, label=entry.label, license=LICENSES.get(entry.format, ""))
+    return clip if clip.loop == entry.loop or entry.format != "bvh" else clip.with_(loop=entry.loop)
+
+
+class MotionLibrary:
+    """All clips of a manifest; see module docstring."""
+
+    def __init__(self, manifest: Manifest | None = None, clips_dir: Path = CLIPS_DIR, cfg: RetargetConfig = RetargetConfig()) -> None:
+        self.manifest = manifest or load_manifest()
+        self.clips_dir = Path(clips_dir)
+        self.cfg = cfg
+        self._clips: dict[str, Clip] = {}
+        self._contacts: dict[tuple[str, str], ContactPhases] = {}
+        self._bases: dict[str, object] = {}
+
+    @property
+    def ids(self) -> tuple[str, ...]:
+        """Manifest clip ids, then the procedural gaits."""
+        from common.motion.procedural import GENERATORS
+
+        return tuple(e.id for e in self.manifest.entries) + tuple(f"procedural/{p}" for p in GENERATORS)
+
+    def clip(self, clip_id: str) -> Clip:
+        """The canonical clip (cached). Besides the manifest's ids, `procedural/<preset>` is the
+        generated gait of the quadruped, fish or manta (procedural.py)."""
+        if clip_id not in self._clips:
+            npz = self.clips_dir / f"{clip_id}.npz"
+            if clip_id.startswith("procedural/"):
+                from common.motion.procedural import GENERATORS
+
+                preset = clip_id.split("/", 1)[1]
+                if preset not in GENERATORS:
+                    raise ClipError(f"no procedural motion for {preset!r}; choose one of {', '.join(GENERATORS)}", path=clip_id)
+                self._clips[clip_id] = load_clip(npz) if npz.exists() else GENERATORS[preset](self.base_character(preset))
+            else:
+                entry = self.manifest.by_id(clip_id)
+                self._clips[clip_id] = load_clip(npz) if npz.exists() else import_entry(entry)
+        return self._clips[clip_id]
+
+    def base_character(self, preset: str):
+        """The preset at its default shape (cached)."""
+        if preset not in self._bases:
+            from common.characters import load_character
+
+            self._bases[preset] = load_character(preset)
+        return self._bases[preset]
+
+    def contacts(self, clip_id: str, preset: str) -> ContactPhases:
+        """Foot contact phases of a clip on the base character of `preset` (cached)."""
+        key = (clip_id, preset)
+        if key not in self._contacts:
+            base = self.base_character(preset)
+            self._contacts[key] = contact_phases(self.clip(clip_id), base.model, character_feet(base), self.cfg)
+        return self._contacts[key]
+
+    def play(self, clip_id: str, character) -> CharacterMotion:
+        """The clip retargeted onto a shaped `common.characters.Character`."""
+        clip = self.clip(clip_id)
+        if clip.character and clip.character != character.preset:
+            raise ClipError(f"clip is for the {clip.character!r} character, not {character.preset!r}", path=clip_id)
+        base = self.base_character(character.preset)
+        return play_on(clip, character, base, self.cfg, self.contacts(clip_id, character.preset))

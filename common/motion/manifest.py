@@ -1,0 +1,152 @@
+"""Dataset manifest: every clip with its hierarchical label, and UniCon's train/test split.
+
+Labels are paths `root/<major>/<minor>/...` (UniCon, Wang et al. 2020): the motion balancer
+walks this tree choosing each child with equal probability. The manifest starts from
+`common/data/clips.json`.
+
+Split (UniCon's evaluation protocol: "80/20 of frames; rare classes go to the test set first"):
+the reconstruction implemented here, configurable by `test_fraction` and `class_depth`:
+1. a clip's class is its label cut to `class_depth` levels below `root` (default: the full label);
+2. classes are ordered by their total frame count, rarest first; ties are broken by a
+   seeded shuffle, so a seed fixes the split;
+3. walking that order, whole clips (in seeded order within a class) move to the test set while
+   the test set is below `test_fraction` of all frames; a clip that would overshoot the target
+   by more than it would undershoot is skipped, so the test share lands near the target.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from common.motion.errors import ClipError
+
+DATA_DIR = Path(__file__).resolve().parent.parent / "data"
+CLIPS_JSON = DATA_DIR / "clips.json"
+
+
+@dataclass(frozen=True)
+class ClipEntry:
+    """One clip of the manifest: `path` is relative to `common/data/`."""
+
+    id: str
+    path: str
+    label: str
+    format: str
+    fps: float
+    frames: int
+    loop: bool
+
+    @property
+    def label_parts(self) -> tuple[str, ...]:
+        """('root', 'locomotion', 'walk', 'forward')."""
+        return tuple(self.label.split("/"))
+
+    def class_at(self, depth: int | None) -> str:
+        """The label cut to `depth` levels below root (None: the whole label)."""
+        parts = self.label_parts
+        return "/".join(parts if depth is None else parts[: depth + 1])
+
+
+@dataclass(frozen=True)
+class Manifest:
+    """All clips of a dataset."""
+
+    entries: tuple[ClipEntry, ...]
+
+    @property
+    def total_frames(self) -> int:
+        return sum(e.frames for e in self.entries)
+
+    def by_id(self, clip_id: str) -> ClipEntry:
+        for e in self.entries:
+            if e.id == clip_id:
+                return e
+        raise KeyError(f"no clip {clip_id!r}; known: {', '.join(e.id for e in self.entries)}")
+
+    def label_tree(self) -> dict:
+        """Nested dict of labels: {'root': {'locomotion': {'walk': {'forward': {'_clips': [ids]}}}}}.
+
+        A node's clips are under the key `_clips`; the motion balancer (sampler/) walks it.
+        """
+        tree: dict = {}
+        for e in self.entries:
+            node = tree
+            for part in e.label_parts:
+                node = node.setdefault(part, {})
+            node.setdefault("_clips", []).append(e.id)
+        return tree
+
+    def frames_per_class(self, depth: int | None = None) -> dict[str, int]:
+        """{class: total frames} at a label depth."""
+        out: dict[str, int] = defaultdict(int)
+        for e in self.entries:
+            out[e.class_at(depth)] += e.frames
+        return dict(out)
+
+
+def load_manifest(path: str | Path = CLIPS_JSON) -> Manifest:
+    """Read a clips.json-style manifest; ClipError names a bad entry and the missing field."""
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text())
+        raw = doc["clips"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ClipError(f'expected JSON with a "clips" list ({exc})', path=path) from exc
+    entries = []
+    for k, c in enumerate(raw):
+        try:
+            label = str(c["label"])
+            if not label.startswith("root"):
+                raise ClipError(f"label {label!r} must start with 'root/'", path=path, joint=c.get("id"))
+            entries.append(ClipEntry(id=str(c["id"]), path=str(c["path"]), label=label, format=str(c["format"]),
+                                     fps=float(c["fps"]), frames=int(c["frames"]), loop=c.get("loop") == "wrap"))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ClipError(f"clip entry {k} lacks or has a bad field ({exc}); needs id, path, label, format, fps, frames", path=path) from exc
+    ids = [e.id for e in entries]
+    if len(set(ids)) != len(ids):
+        raise ClipError(f"duplicate clip ids: {sorted({i for i in ids if ids.count(i) > 1})}", path=path)
+    return Manifest(tuple(entries))
+
+
+@dataclass(frozen=True)
+class Split:
+    """A train/test split of clip ids."""
+
+    train: tuple[str, ...]
+    test: tuple[str, ...]
+    seed: int
+    test_fraction_frames: float
+    """The share of frames that landed in the test set."""
+
+
+def unicon_split(manifest: Manifest, *, seed: int = 0, test_fraction: float = 0.2, class_depth: int | None = None) -> Split:
+    """Category-aware split, rarest classes to the test set first (see module docstring)."""
+    if not 0.0 < test_fraction < 1.0:
+        raise ValueError(f"test_fraction must be in (0, 1), got {test_fraction}")
+    rng = np.random.default_rng(seed)
+    classes: dict[str, list[ClipEntry]] = defaultdict(list)
+    for e in manifest.entries:
+        classes[e.class_at(class_depth)].append(e)
+    names = sorted(classes)
+    tiebreak = dict(zip(names, rng.permutation(len(names))))
+    order = sorted(names, key=lambda c: (sum(e.frames for e in classes[c]), tiebreak[c]))
+    target = test_fraction * manifest.total_frames
+    test: list[str] = []
+    test_frames = 0
+    for cls in order:
+        members = sorted(classes[cls], key=lambda e: e.id)
+        for i in rng.permutation(len(members)):
+            e = members[i]
+            if test_frames >= target:
+                break
+            # NOTE: take the clip only if that lands nearer the target than leaving it out.
+            if abs(test_frames + e.frames - target) <= abs(test_frames - target):
+                test.append(e.id)
+                test_frames += e.frames
+    train = tuple(e.id for e in manifest.entries if e.id not in test)
+    return Split(train=train, test=tuple(sorted(test)), seed=seed, test_fraction_frames=test_frames / manifest.total_frames)

@@ -1,0 +1,50 @@
+import numpy as np
+import pytest
+
+from common.motion import cli
+from common.motion.check import check_motion
+from common.motion.reference import CharacterMotion
+from common.motion.retarget import contact_phases
+
+from .conftest import DEEPMIMIC, base_character
+
+
+def test_check_reports_penetration(walk_clip):
+    ch = base_character("humanoid")
+    feet = tuple(ch.foot_geoms)
+    contacts = contact_phases(walk_clip, ch.model, feet)
+    ok = check_motion(CharacterMotion.from_clip(walk_clip, ch.model), feet, contacts.flags)
+    sunk = walk_clip.with_(root_pos=walk_clip.root_pos - [0, 0, 0.10])
+    bad = check_motion(CharacterMotion.from_clip(sunk, ch.model), feet, contacts.flags)
+    assert ok.penetration_m < 0.02 and ok.stance_float_m < 0.02
+    assert bad.penetration_m == pytest.approx(ok.penetration_m + 0.10, abs=0.01)
+    assert ok.frames == walk_clip.num_frames and ok.fps == pytest.approx(30.0, rel=1e-3)
+    assert "humanoid3d_walk" in ok.line()
+
+
+def test_cli_import_then_check(tmp_path, capsys):
+    assert cli.main(["import", str(DEEPMIMIC / "humanoid3d_run.txt"), "--out", str(tmp_path)]) == 0
+    out = tmp_path / "humanoid3d_run.npz"
+    assert out.exists() and "25 frames" in capsys.readouterr().out
+    assert cli.main(["check", str(out), "humanoid3d_walk", "--random-shape", "1"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 3 and "humanoid3d_walk" in lines[2] and "pen" in lines[2]
+
+
+def test_cli_reports_bad_files(tmp_path, capsys):
+    bad = tmp_path / "bad.bvh"
+    bad.write_text("HIERARCHY\nROOT A\n{\n")
+    assert cli.main(["check", str(bad)]) == 1
+    assert "bad.bvh" in capsys.readouterr().out
+    assert cli.main(["import", str(bad), "--out", str(tmp_path)]) == 1
+
+
+@pytest.mark.render
+def test_view_writes_a_png_strip(tmp_path):
+    import imageio.v3 as iio
+
+    out = tmp_path / "walk.png"
+    assert cli.main(["view", "humanoid3d_walk", "--out", str(out), "--frames", "3"]) == 0
+    img = iio.imread(out)
+    assert img.shape[1] == 3 * img.shape[0] * 240 // 360 and img.mean() > 5
+    assert np.std(img) > 5  # not a blank picture

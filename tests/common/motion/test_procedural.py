@@ -1,0 +1,61 @@
+import mujoco
+import numpy as np
+import pytest
+
+from common.motion.procedural import GENERATORS
+from common.motion.qpos_map import QposMap
+from common.motion.reference import CharacterMotion
+from common.motion.retarget import contact_phases, foot_heights, play_on
+
+from .conftest import base_character
+
+
+@pytest.mark.parametrize("preset", sorted(GENERATORS))
+def test_procedural_clip_drives_every_joint_and_loops(preset):
+    ch = base_character(preset)
+    clip = GENERATORS[preset](ch)
+    assert clip.loop and clip.character == preset and clip.label.startswith("root/locomotion/")
+    assert QposMap(clip, ch.model).undriven == ()
+    np.testing.assert_allclose(clip.joint_qpos[0], clip.joint_qpos[-1], atol=1e-9)  # one whole cycle
+    assert clip.root_pos[-1, 0] - clip.root_pos[0, 0] > 0.1  # it goes forward
+    assert np.ptp(clip.joint_qpos, axis=0).max() > 0.2  # and actually moves its joints
+
+
+def test_quadruped_trots_with_diagonal_pairs_on_the_floor():
+    from common.characters import load_character
+
+    base = base_character("quadruped")
+    clip = GENERATORS["quadruped"](base)
+    feet = tuple(base.foot_geoms)
+    contacts = contact_phases(clip, base.model, feet)
+    flags = dict(zip(feet, contacts.flags.T))
+    assert np.mean(flags["fl_foot"] == flags["hr_foot"]) > 0.9  # a trot: diagonals together
+    assert np.mean(flags["fl_foot"] != flags["fr_foot"]) > 0.7
+    rng = np.random.default_rng(5)
+    for _ in range(5):
+        ch = load_character("quadruped", shape=base.space.sample(rng), parameterization="random")
+        h, _ = foot_heights(ch.model, play_on(clip, ch, base, contacts=contacts).qpos_frames, feet)
+        assert np.abs(h[contacts.flags]).max() < 0.05
+
+
+def test_fish_wave_grows_toward_the_tail():
+    ch = base_character("fish")
+    clip = GENERATORS["fish"](ch)
+    yaw = [i for i, n in enumerate(clip.joint_names) if n.endswith("_yaw")]
+    amp = np.ptp(clip.joint_qpos[:, [clip.joint_slices()[i].start for i in yaw]], axis=0)
+    assert np.all(np.diff(amp) > 0)
+
+
+def test_manta_wings_flap_symmetrically():
+    ch = base_character("manta")
+    motion = CharacterMotion.from_clip(GENERATORS["manta"](ch), ch.model)
+    data = mujoco.MjData(ch.model)
+    left, right = ch.model.body("wing_left3").id, ch.model.body("wing_right3").id
+    heights = []
+    for q in motion.qpos_frames:
+        data.qpos[:] = q
+        mujoco.mj_kinematics(ch.model, data)
+        heights.append((data.xpos[left, 2], data.xpos[right, 2]))
+    heights = np.array(heights)
+    np.testing.assert_allclose(heights[:, 0], heights[:, 1], atol=1e-9)
+    assert np.ptp(heights[:, 0]) > 0.05  # the tips really go up and down
