@@ -1,0 +1,71 @@
+"""`SamplerClient`: typed calls to the sampler service over `common.rpc.RpcClient` (Lazy Pirate).
+
+Every call retries with a fresh socket after `timeout_s` and raises `ServiceUnavailable` after
+`retries` tries; actors then keep their last draws and count an outage (`UnrollMsg.sampler_outages`).
+An `ErrorMsg` reply (bad input) raises `common.wire.WireError` carrying the service's reason.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from common import wire
+from common.rpc import RpcClient, ServiceUnavailable
+
+__all__ = ["Draws", "SamplerClient", "ServiceUnavailable"]
+
+
+@dataclass(frozen=True)
+class Draws:
+    params: np.ndarray
+    """`[n, n_params]` float32 task/shape parameters in the space's order."""
+    clip_ids: list[str]
+    """n clip ids, or empty when the sampler has no clips."""
+    buffer_generation: int
+    """MCMC refills so far when these were drawn."""
+
+
+class SamplerClient:
+    """One client per thread (ZeroMQ sockets are not thread-safe)."""
+
+    def __init__(self, endpoint: str | Callable[[], str], timeout_s: float = 2.0, retries: int = 3,
+                 client_id: int = 0):
+        """`endpoint` may be a callable returning the current endpoint (looked up again on
+        every reconnect, e.g. from a restarted Ray actor)."""
+        self.rpc = RpcClient(endpoint, timeout_s=timeout_s, retries=retries)
+        self.client_id = client_id
+
+    def draw(self, n: int) -> Draws:
+        reply = self.rpc.call(wire.DrawRequestMsg(n=int(n), client_id=self.client_id), wire.DrawReplyMsg)
+        return Draws(params=np.array(reply.params), clip_ids=list(reply.clip_ids),
+                     buffer_generation=int(reply.buffer_generation))
+
+    def report(self, params: np.ndarray, values: np.ndarray) -> None:
+        """Send (s_b `[m, d]`, V(s) `[m]`) pairs for the marginal value fit."""
+        msg = wire.ValueReportMsg(params=np.asarray(params, dtype=np.float32),
+                                  values=np.asarray(values, dtype=np.float32).reshape(-1))
+        self.rpc.call(msg, wire.OkMsg)
+
+    def tick(self, iteration: int) -> dict[str, float]:
+        """Policy iteration `iteration` is done; returns the stats after the tick (a refill
+        every `p_mcmc` iterations can make this take tens of milliseconds)."""
+        return dict(self.rpc.call(wire.TickMsg(iteration=int(iteration)), wire.StatsReplyMsg).stats)
+
+    def stats(self) -> dict[str, float]:
+        return dict(self.rpc.call(wire.StatsRequestMsg(), wire.StatsReplyMsg).stats)
+
+    def get_state(self) -> dict[str, Any]:
+        """`{"meta": ..., "arrays": {name: np.ndarray}}` (arrays copied: writable, not views of frames)."""
+        reply = self.rpc.call(wire.StateRequestMsg(), wire.StateMsg)
+        return {"meta": reply.meta, "arrays": {k: np.array(v) for k, v in reply.arrays.items()}}
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        """Restore a state returned by `get_state` (or `ShapeSampler.state_dict`)."""
+        arrays = {k: np.ascontiguousarray(np.asarray(v)) for k, v in state["arrays"].items()}
+        self.rpc.call(wire.StateMsg(meta=state["meta"], arrays=arrays), wire.OkMsg)
+
+    def close(self) -> None:
+        self.rpc.close()

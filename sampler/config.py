@@ -1,0 +1,81 @@
+"""Configuration of the sampler service (one frozen dataclass, composed into the run config)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class SamplerConfig:
+    """Adaptive sampling of task/shape parameters (Won & Lee 2019, Sec. 4.2 and Algorithm 1) and
+    the hierarchical motion balancer (UniCon 2020, Sec. 5.1). Defaults are the paper's where it
+    gives a number (Table 2: N_mcmc, P_mcmc, learning rates)."""
+
+    k: float = 5.0
+    """Uniformity knob of the target density exp(-k * Vm / Vbar); 0 = plain uniform sampling (the
+    baseline). The paper compares several k (its Figure 6) without a readable default."""
+    p_mcmc: int = 20
+    """Policy iterations (ticks) between MCMC refills of the shape buffer (paper: P_mcmc = 20)."""
+    n_mcmc: int = 1000
+    """Shapes in the buffer that episodes draw from (paper: N_mcmc = 1000)."""
+    n_chains: int = 32
+    """Independent Metropolis-Hastings chains run side by side (vectorized) per refill."""
+    burn_in: int = 100
+    """MH steps per chain discarded before the first kept sample."""
+    thin: int = 4
+    """Keep every `thin`-th MH step of each chain after burn-in (reduces autocorrelation)."""
+    vbar_floor: float = 1e-3
+    """Smallest |Vbar| used as the density's temperature: guards the division early in training."""
+    vm_hidden: tuple[int, ...] = (64, 64)
+    """Hidden layer sizes of the marginal value MLP Vm(s_b) (ReLU)."""
+    vm_lr: float = 1e-3
+    """Adam learning rate of Vm (paper Table 2: marginal value learning rate 1e-3)."""
+    vbar_rate: float = 1e-3
+    """Step size of the running average Vbar per minibatch (paper Table 2: 1e-3)."""
+    vm_fit_steps: int = 64
+    """Adam steps of Vm per tick. The paper does 10 epochs of 128-pair minibatches over 4096
+    tuples (320 steps); on a CPU each step costs ~1 ms of overhead whatever its size, so the
+    default passes about the same data (64 x 512 = 8 epochs) in a fifth of the time."""
+    vm_minibatch: int = 512
+    """Pairs per Vm minibatch (paper: 128, as for PPO; see vm_fit_steps)."""
+    max_pending_pairs: int = 65536
+    """Most (params, V) pairs held between ticks; the oldest are dropped beyond it."""
+    max_draw: int = 65536
+    """Largest `n` one draw request may ask for; bigger requests get an error reply."""
+    probe_points: int = 1024
+    """Uniform points over the box on which Vm's min/max/mean are reported after each fit."""
+    seed: int = 0
+    """Seed of the sampler's numpy generator and of Vm's initial weights."""
+    plot_params: tuple[str, ...] = ()
+    """The two parameters of the Vm map PNG; empty = the first two of the space."""
+    host: str = "127.0.0.1"
+    """Interface the ROUTER binds; "auto" (Ray actor only) = this node's IP for a cluster."""
+    port: int = 0
+    """TCP port of the ROUTER; 0 = a free port chosen at bind time."""
+
+    def __post_init__(self) -> None:
+        checks = [
+            ("k", self.k >= 0, "k >= 0"),
+            ("p_mcmc", self.p_mcmc >= 1, ">= 1"),
+            ("n_mcmc", self.n_mcmc >= 1, ">= 1"),
+            ("n_chains", self.n_chains >= 1, ">= 1"),
+            ("burn_in", self.burn_in >= 0, ">= 0"),
+            ("thin", self.thin >= 1, ">= 1"),
+            ("vbar_floor", self.vbar_floor > 0, "> 0"),
+            ("vm_lr", self.vm_lr > 0, "> 0"),
+            ("vbar_rate", 0 < self.vbar_rate <= 1, "in (0, 1]"),
+            ("vm_minibatch", self.vm_minibatch >= 1, ">= 1"),
+            ("vm_fit_steps", self.vm_fit_steps >= 0, ">= 0"),
+            ("port", 0 <= self.port < 65536, "in [0, 65535]"),
+        ]
+        for name, ok, allowed in checks:
+            if not ok:
+                raise ValueError(f"SamplerConfig.{name} = {getattr(self, name)!r} is not allowed; use {allowed}")
+        if not self.vm_hidden or any(h < 1 for h in self.vm_hidden):
+            raise ValueError(f"SamplerConfig.vm_hidden = {self.vm_hidden!r}; give one or more positive sizes")
+
+    @property
+    def mh_steps(self) -> int:
+        """MH steps per chain for one refill: burn-in plus enough thinned steps for `n_mcmc`."""
+        per_chain = -(-self.n_mcmc // self.n_chains)
+        return self.burn_in + per_chain * self.thin

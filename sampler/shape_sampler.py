@@ -1,0 +1,247 @@
+"""`ShapeSampler`: what each new episode is about (Won & Lee 2019, Algorithm 1; UniCon 2020, Sec. 5.1).
+
+Ties together a task's parameter space, the marginal value function Vm and its average Vbar,
+the MCMC buffer of `n_mcmc` parameter vectors refilled every `p_mcmc` policy iterations, and the
+motion balancer. Pure numpy/torch: the service puts it behind a socket, tests drive it directly.
+
+Algorithm 1 mapped onto the calls:
+    line 3       tick(i) refills the buffer by MCMC when p_mcmc iterations passed since the last refill
+    lines 7-9    draw(n): the next n buffer entries (a shuffled pass, reshuffled when used up) + clips
+    lines 15-16  report(params, values): pairs (s_b, V(s)) stored until the next tick (buffer D)
+    lines 24-26  tick(i) fits Vm and Vbar on the stored pairs, then clears them (line 27)
+
+A tick is idempotent for a repeated iteration number (a client's retry after a lost reply): the
+pairs are already consumed and the refill is keyed on the iteration, not on the tick count.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from typing import Any, Sequence
+
+import numpy as np
+import torch
+
+from common.params import ParamError, ParamSpace
+from sampler.balancer import MotionBalancer
+from sampler.config import SamplerConfig
+from sampler.marginal_value import MarginalValue
+from sampler.mcmc import metropolis_hastings
+
+STATE_VERSION = 1
+
+
+class ShapeSampler:
+    """Adaptive sampler of task/shape parameters and motion clips; see the module docstring."""
+
+    def __init__(self, config: SamplerConfig, space: ParamSpace,
+                 clips: Sequence[tuple[str, str]] | None = None):
+        self.config = config
+        self.space = space
+        self.rng = np.random.default_rng(config.seed)
+        self.vm = MarginalValue(space.low_array, space.high_array, config.vm_hidden, config.vm_lr,
+                                config.vbar_rate, config.seed, config.probe_points)
+        self.balancer = MotionBalancer(clips) if clips else None
+        self._pending_params: list[np.ndarray] = []
+        self._pending_values: list[np.ndarray] = []
+        self.generation = 0
+        self.last_tick = -1
+        self.last_refill_iteration = 0
+        self.draws_served = 0
+        self.acceptance = 1.0
+        self.refill_s = 0.0
+        self.fit_s = 0.0
+        self.buffer = space.uniform(self.rng, config.n_mcmc)
+        self._order = self.rng.permutation(config.n_mcmc)
+        self._cursor = 0
+
+    def draw(self, n: int) -> tuple[np.ndarray, list[str]]:
+        """`n` episode draws: parameters `[n, d]` float64 from the buffer, and `n` clip ids
+        (an empty list when the sampler has no clips). Raises ValueError for a bad `n`."""
+        if not isinstance(n, int) or isinstance(n, bool) or not 1 <= n <= self.config.max_draw:
+            raise ValueError(f"draw of n = {n!r}; allowed: an integer in [1, {self.config.max_draw}]")
+        rows = np.empty(n, dtype=np.int64)
+        filled = 0
+        while filled < n:
+            if self._cursor == len(self._order):
+                self._order = self.rng.permutation(len(self.buffer))
+                self._cursor = 0
+            take = min(n - filled, len(self._order) - self._cursor)
+            rows[filled:filled + take] = self._order[self._cursor:self._cursor + take]
+            self._cursor += take
+            filled += take
+        clips = self.balancer.draw(self.rng, n) if self.balancer else []
+        self.draws_served += n
+        return self.buffer[rows].copy(), clips
+
+    def report(self, params: np.ndarray, values: np.ndarray) -> int:
+        """Store pairs (s_b `[m, d]`, V(s) `[m]`) for the next fit; returns m.
+
+        Raises `ParamError` (a ValueError) naming the first out-of-range or NaN entry."""
+        params = np.asarray(params, dtype=np.float64)
+        values = np.asarray(values, dtype=np.float64)
+        if params.ndim != 2 or params.shape[1] != self.space.dim:
+            raise ParamError(f"params of shape {params.shape}; expected [m, {self.space.dim}] "
+                             f"for {list(self.space.names)}")
+        if values.shape != (params.shape[0],):
+            raise ParamError(f"values of shape {values.shape}; expected [{params.shape[0]}], one per params row")
+        if not np.isfinite(values).all():
+            row = int(np.flatnonzero(~np.isfinite(values))[0])
+            raise ParamError(f"values[{row}] = {values[row]}; values must be finite returns")
+        low, high = self.space.low_array, self.space.high_array
+        # NOTE: draws travel as float32 and come back in reports; float32(1.1) > 1.1, so a draw at
+        # the bound would fail an exact check. Allow float32 rounding, then clip into the box.
+        tol = 1e-6 * np.maximum(1.0, np.maximum(np.abs(low), np.abs(high)))
+        inside = (params >= low - tol) & (params <= high + tol)
+        if not inside.all():
+            bad = int(np.flatnonzero(~inside.all(axis=1))[0])
+            col = int(np.flatnonzero(~inside[bad])[0])
+            raise ParamError(f"row {bad}: parameter {self.space.names[col]!r} = {params[bad, col]:g} is out of "
+                             f"range; allowed: {self.space.describe(col)}")
+        params = np.clip(params, low, high)
+        self._pending_params.append(params.copy())
+        self._pending_values.append(values.copy())
+        self._trim_pending()
+        return params.shape[0]
+
+    def _trim_pending(self) -> None:
+        """Keep only the newest `max_pending_pairs` pairs (bounded memory if ticks stop coming)."""
+        total = sum(len(v) for v in self._pending_values)
+        while total > self.config.max_pending_pairs and self._pending_values:
+            excess = total - self.config.max_pending_pairs
+            if len(self._pending_values[0]) <= excess:
+                total -= len(self._pending_values.pop(0))
+                self._pending_params.pop(0)
+            else:
+                self._pending_values[0] = self._pending_values[0][excess:]
+                self._pending_params[0] = self._pending_params[0][excess:]
+                total -= excess
+
+    @property
+    def pending_pairs(self) -> int:
+        return sum(len(v) for v in self._pending_values)
+
+    def tick(self, iteration: int) -> dict[str, float]:
+        """One policy iteration finished: fit Vm on the stored pairs, refill the buffer when
+        `p_mcmc` iterations passed since the last refill, and return `stats()`."""
+        if self._pending_values:
+            t0 = time.perf_counter()
+            self.vm.fit(np.concatenate(self._pending_params), np.concatenate(self._pending_values),
+                        self.config.vm_fit_steps, self.config.vm_minibatch, self.rng)
+            self.fit_s = time.perf_counter() - t0
+            self._pending_params.clear()
+            self._pending_values.clear()
+        if iteration < self.last_refill_iteration:  # the learner went back (resumed without our state)
+            self.last_refill_iteration = iteration
+        if iteration - self.last_refill_iteration >= self.config.p_mcmc:
+            self.refill()
+            self.last_refill_iteration = iteration
+        self.last_tick = max(self.last_tick, iteration)
+        return self.stats()
+
+    def refill(self) -> None:
+        """Fill the buffer with `n_mcmc` draws from exp(-k Vm / |Vbar|) (Algorithm 1, line 3).
+
+        Until Vm has seen data (and always for k = 0) the draws are uniform over the box."""
+        t0 = time.perf_counter()
+        cfg = self.config
+        if cfg.k == 0 or not self.vm.fitted:
+            self.buffer = self.space.uniform(self.rng, cfg.n_mcmc)
+            self.acceptance = 1.0
+        else:
+            result = metropolis_hastings(self.vm, self.space.low_array, self.space.high_array, cfg.k,
+                                         self.vm.temperature(cfg.vbar_floor), cfg.n_mcmc, cfg.n_chains,
+                                         cfg.burn_in, cfg.thin, self.rng)
+            self.buffer = result.samples
+            self.acceptance = result.acceptance_rate
+        self._order = self.rng.permutation(len(self.buffer))
+        self._cursor = 0
+        self.generation += 1
+        self.refill_s = time.perf_counter() - t0
+
+    def stats(self) -> dict[str, float]:
+        """Flat metrics (the learner logs them under `sampler/`):
+
+        buffer/generation, buffer/mean/<param>, buffer/std/<param>   the MCMC buffer
+        vm/min, vm/max, vm/mean      Vm over fixed uniform probe points (value units)
+        vm/vbar, vm/temperature      the running average and the |Vbar| floor actually used
+        vm/fit_loss, vm/fit_s        last fit's MSE (value units^2) and wall time (s)
+        vm/pairs_seen, vm/pending_pairs
+        mcmc/acceptance, mcmc/refill_s   last refill's MH acceptance rate and wall time (s)
+        draws/served, iteration
+        clips/count, clips/p_min, clips/p_max   balancer probabilities (when clips are used)
+        """
+        out: dict[str, float] = {"iteration": float(self.last_tick), "buffer/generation": float(self.generation)}
+        mean, std = self.buffer.mean(axis=0), self.buffer.std(axis=0)
+        for i, name in enumerate(self.space.names):
+            out[f"buffer/mean/{name}"] = float(mean[i])
+            out[f"buffer/std/{name}"] = float(std[i])
+        probe_vm = self.vm(self.vm.probe)
+        out.update({
+            "vm/min": float(probe_vm.min()), "vm/max": float(probe_vm.max()), "vm/mean": float(probe_vm.mean()),
+            "vm/vbar": self.vm.vbar, "vm/temperature": self.vm.temperature(self.config.vbar_floor),
+            "vm/fit_loss": self.vm.last_loss, "vm/fit_s": self.fit_s,
+            "vm/pairs_seen": float(self.vm.pairs_seen), "vm/pending_pairs": float(self.pending_pairs),
+            "mcmc/acceptance": self.acceptance, "mcmc/refill_s": self.refill_s,
+            "draws/served": float(self.draws_served),
+        })
+        if self.balancer is not None:
+            p = self.balancer.probabilities
+            out.update({"clips/count": float(len(p)), "clips/p_min": float(p.min()), "clips/p_max": float(p.max())})
+        return out
+
+    def state_dict(self) -> dict[str, Any]:
+        """`{"meta": primitives, "arrays": numpy arrays}`: everything needed to continue exactly
+        (buffer, draw order, pending pairs, RNG, Vm with Adam's moments). It is what `StateMsg`
+        carries; for a `torch.load(weights_only=True)` checkpoint convert with `state_to_torch`."""
+        vm_meta, vm_arrays = self.vm.state()
+        meta = {
+            "version": STATE_VERSION, "names": list(self.space.names), "generation": self.generation,
+            "last_tick": self.last_tick, "last_refill_iteration": self.last_refill_iteration,
+            "draws_served": self.draws_served, "acceptance": self.acceptance, "refill_s": self.refill_s,
+            "fit_s": self.fit_s, "cursor": self._cursor, "rng": json.dumps(self.rng.bit_generator.state),
+            "vm": vm_meta,
+        }
+        pending_p = np.concatenate(self._pending_params) if self._pending_params else np.zeros((0, self.space.dim))
+        pending_v = np.concatenate(self._pending_values) if self._pending_values else np.zeros(0)
+        arrays = {"buffer": self.buffer.copy(), "order": self._order.astype(np.int64),
+                  "pending_params": pending_p, "pending_values": pending_v}
+        arrays.update({f"vm/{k}": v for k, v in vm_arrays.items()})
+        return {"meta": meta, "arrays": arrays}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore a `state_dict()`; raises ValueError if it belongs to another parameter space."""
+        meta, arrays = state["meta"], {k: np.array(v) for k, v in state["arrays"].items()}
+        if meta.get("version") != STATE_VERSION:
+            raise ValueError(f"sampler state version {meta.get('version')!r}; this code reads {STATE_VERSION}")
+        if list(meta["names"]) != list(self.space.names):
+            raise ValueError(f"sampler state is for parameters {meta['names']}, "
+                             f"this sampler has {list(self.space.names)}")
+        self.vm.load_state(meta["vm"], {k[3:]: v for k, v in arrays.items() if k.startswith("vm/")})
+        self.buffer = arrays["buffer"].astype(np.float64).reshape(-1, self.space.dim)
+        self._order = arrays["order"].astype(np.int64)
+        pending_v = arrays["pending_values"].astype(np.float64).reshape(-1)
+        pending_p = arrays["pending_params"].astype(np.float64).reshape(-1, self.space.dim)
+        self._pending_params = [pending_p] if len(pending_v) else []
+        self._pending_values = [pending_v] if len(pending_v) else []
+        self._cursor = int(meta["cursor"])
+        self.generation, self.last_tick = int(meta["generation"]), int(meta["last_tick"])
+        self.last_refill_iteration = int(meta["last_refill_iteration"])
+        self.draws_served = int(meta["draws_served"])
+        self.acceptance, self.refill_s = float(meta["acceptance"]), float(meta["refill_s"])
+        self.fit_s = float(meta["fit_s"])
+        self.rng = np.random.default_rng()
+        self.rng.bit_generator.state = json.loads(meta["rng"])
+
+
+def state_to_torch(state: dict[str, Any]) -> dict[str, Any]:
+    """A sampler state with its arrays as torch tensors: loadable by `torch.load(weights_only=True)`
+    (which refuses numpy arrays). The inverse is `state_from_torch`."""
+    return {"meta": state["meta"], "arrays": {k: torch.from_numpy(np.array(v)) for k, v in state["arrays"].items()}}
+
+
+def state_from_torch(state: dict[str, Any]) -> dict[str, Any]:
+    """Undo `state_to_torch`: tensors back to numpy arrays (what `load_state_dict`/`StateMsg` take)."""
+    return {"meta": state["meta"], "arrays": {k: np.asarray(v.numpy() if hasattr(v, "numpy") else v)
+                                              for k, v in state["arrays"].items()}}

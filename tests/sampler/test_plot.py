@@ -1,0 +1,37 @@
+"""The Vm map PNG (Won & Lee 2019, Fig. 6) from a sampler state."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from common.params import ParamSpace
+from sampler.config import SamplerConfig
+from sampler.plot import plot_state
+from sampler.shape_sampler import ShapeSampler
+
+CFG = SamplerConfig(p_mcmc=1, n_mcmc=300, n_chains=16, burn_in=20, vm_fit_steps=20, probe_points=64)
+
+
+def trained_state(space: ParamSpace) -> dict:
+    s = ShapeSampler(CFG, space)
+    for it in (1, 2):
+        p, _ = s.draw(200)
+        s.report(p, 50 + 10 * p[:, 0])
+        s.tick(it)
+    return s.state_dict()
+
+
+def test_png_of_two_chosen_parameters(tmp_path):
+    space = ParamSpace(names=("height", "thickness", "arm"), low=(0.75, 0.5, 0.5), high=(1.5, 1.5, 1.5))
+    out = plot_state(trained_state(space), space, tmp_path / "runs" / "vm.png", params=("arm", "height"))
+    data = out.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 5000
+    with pytest.raises(ValueError, match=r"choose two different names from \['height', 'thickness', 'arm'\]"):
+        plot_state(trained_state(space), space, tmp_path / "bad.png", params=("arm", "weight"))
+
+
+def test_png_of_a_one_parameter_space(tmp_path):
+    space = ParamSpace(names=("speed",), low=(0.5,), high=(2.0,))
+    out = plot_state(trained_state(space), space, tmp_path / "vm1.png")
+    assert out.read_bytes()[:4] == b"\x89PNG"

@@ -1,0 +1,160 @@
+"""The sampler service over real ZeroMQ sockets on 127.0.0.1: requests, bad input, restarts."""
+
+import threading
+import time
+
+import msgpack
+import numpy as np
+import pytest
+import zmq
+
+from common import sockets, wire
+from common.params import ParamSpace
+from common.rpc import ServiceUnavailable
+from sampler.actor import start_in_thread
+from sampler.balancer import load_clip_labels
+from sampler.client import SamplerClient
+from sampler.config import SamplerConfig
+
+SPACE = ParamSpace(names=("leg", "arm"), low=(0.5, 0.5), high=(2.0, 1.5))
+CFG = SamplerConfig(p_mcmc=2, n_mcmc=200, n_chains=16, burn_in=20, vm_fit_steps=20, probe_points=128, seed=3)
+
+
+@pytest.fixture
+def service():
+    svc, thread, stop = start_in_thread(CFG, SPACE, load_clip_labels())
+    yield svc
+    stop.set()
+    thread.join(timeout=5)
+    assert not thread.is_alive()
+
+
+def raw_request(endpoint: str, frames: list) -> wire.ErrorMsg:
+    """Send arbitrary frames from a bare DEALER and decode the reply."""
+    sock = sockets.connect_dealer(endpoint)
+    try:
+        sock.send_multipart([b"", *frames])
+        assert sock.poll(5000, zmq.POLLIN), "the service did not answer"
+        return wire.decode(sock.recv_multipart()[1:])
+    finally:
+        sock.close(linger=0)
+
+
+def test_client_calls(service):
+    assert service.endpoint.startswith("tcp://127.0.0.1:")
+    client = SamplerClient(service.endpoint, timeout_s=5.0)
+    try:
+        d = client.draw(8)
+        assert d.params.shape == (8, 2) and d.params.dtype == np.float32 and len(d.clip_ids) == 8
+        assert d.buffer_generation == 0
+        client.report(d.params, np.linspace(10, 20, 8))
+        stats = client.tick(2)
+        assert stats["buffer/generation"] == 1 and stats["vm/pairs_seen"] == 8
+        assert stats["draws/served"] == 8 and stats["requests/rejected"] == 0
+        state = client.get_state()
+        client.draw(50)
+        client.set_state(state)
+        assert client.stats()["draws/served"] == 8
+    finally:
+        client.close()
+
+
+def test_restored_state_gives_identical_draws(service):
+    client = SamplerClient(service.endpoint, timeout_s=5.0)
+    try:
+        state = client.get_state()
+        first = client.draw(30)
+        client.set_state(state)
+        again = client.draw(30)
+        np.testing.assert_array_equal(first.params, again.params)
+        assert first.clip_ids == again.clip_ids
+    finally:
+        client.close()
+
+
+def _bad_version_frames() -> list[bytes]:
+    frames = [bytes(f) for f in wire.encode(wire.DrawRequestMsg(n=2))]
+    header = msgpack.unpackb(frames[0])
+    header["v"] = 99
+    return [msgpack.packb(header), *frames[1:]]
+
+
+def test_service_survives_bad_input_and_counts_it(service):
+    ok_report = wire.encode(wire.ValueReportMsg(params=np.ones((3, 2), np.float32), values=np.ones(3, np.float32)))
+    nan_params = np.array([[1.0, np.nan]], np.float32)
+    cases = [
+        ([b"\xc1garbage"], "malformed"),
+        ([bytes(f) for f in ok_report[:-1]], "malformed"),  # truncated multipart: one array frame missing
+        (_bad_version_frames(), "version"),
+        (wire.encode(wire.ValueReportMsg(params=nan_params, values=np.ones(1, np.float32))), "nonfinite"),
+        (wire.encode(wire.ValueReportMsg(params=np.array([[9.0, 1.0]], np.float32), values=np.ones(1, np.float32))),
+         "invalid"),
+        (wire.encode(wire.DrawRequestMsg(n=0)), "invalid"),
+        (wire.encode(wire.OkMsg(info="not a request")), "unknown_kind"),
+    ]
+    for frames, kind in cases:
+        reply = raw_request(service.endpoint, [bytes(f) for f in frames])
+        assert isinstance(reply, wire.ErrorMsg) and reply.error_kind == kind, (kind, reply)
+    out_of_range = raw_request(service.endpoint, [bytes(f) for f in cases[4][0]])
+    assert "'leg' = 9 is out of range; allowed: leg in [0.5, 2]" in out_of_range.reason
+    client = SamplerClient(service.endpoint, timeout_s=5.0)
+    try:
+        assert client.draw(4).params.shape == (4, 2)  # still serving
+        with pytest.raises(wire.WireError, match="out of range"):
+            client.report(np.array([[0.1, 1.0]]), np.ones(1))
+        stats = client.stats()
+    finally:
+        client.close()
+    assert stats["requests/rejected"] == 9
+    assert stats["requests/rejected/malformed"] == 2 and stats["requests/rejected/invalid"] == 4
+    assert stats["requests/rejected/version"] == 1 and stats["requests/rejected/nonfinite"] == 1
+    assert stats["vm/pending_pairs"] == 0
+
+
+def test_client_survives_a_service_restart_on_the_same_endpoint():
+    svc, thread, stop = start_in_thread(CFG, SPACE)
+    endpoint = svc.endpoint
+    client = SamplerClient(endpoint, timeout_s=0.5, retries=10)
+    try:
+        assert client.draw(2).params.shape == (2, 2)
+        stop.set()
+        thread.join(timeout=5)
+        restarted: list = []
+
+        def restart_later():
+            time.sleep(0.7)  # the client's first tries time out against a dead endpoint
+            restarted.append(start_in_thread(CFG, SPACE, address=endpoint))
+
+        t = threading.Thread(target=restart_later)
+        t.start()
+        d = client.draw(3)  # blocks through the outage, then succeeds on the new service
+        t.join()
+        assert d.params.shape == (3, 2)
+        assert client.rpc.reconnects >= 1
+        svc2, thread2, stop2 = restarted[0]
+        assert svc2.endpoint == endpoint and svc2.server.served >= 1
+        stop2.set()
+        thread2.join(timeout=5)
+        # With nobody serving, the client gives up with ServiceUnavailable (actors then degrade).
+        quick = SamplerClient(endpoint, timeout_s=0.2, retries=2)
+        with pytest.raises(ServiceUnavailable):
+            quick.draw(1)
+        quick.close()
+    finally:
+        client.close()
+
+
+def test_an_internal_error_is_replied_and_counted_not_fatal(service, monkeypatch):
+    def broken_draw(n):
+        raise RuntimeError("boom")
+
+    client = SamplerClient(service.endpoint, timeout_s=5.0)
+    try:
+        monkeypatch.setattr(service.sampler, "draw", broken_draw)
+        with pytest.raises(wire.WireError, match="internal error on draw_request: RuntimeError: boom"):
+            client.draw(1)
+        monkeypatch.undo()
+        assert client.draw(2).params.shape == (2, 2)
+        assert client.stats()["requests/rejected/internal"] == 1
+    finally:
+        client.close()
