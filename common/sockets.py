@@ -13,8 +13,10 @@ import zmq
 
 UNROLL_SEND_HWM = 4
 """Unrolls an actor may queue before `send` blocks: backpressure slows collection, loses nothing."""
-UNROLL_RECV_HWM = 64
-"""Unrolls the learner's PULL buffers per peer; beyond it the peer's PUSH blocks (no loss)."""
+UNROLL_RECV_HWM = 4
+"""Unrolls the learner's PULL buffers per peer; beyond it the peer's PUSH blocks (no loss).
+Small on purpose: on-policy PPO wants fresh data, so a busy learner should pause the actors
+(backpressure) rather than let a backlog of soon-stale unrolls pile up."""
 WEIGHTS_HWM = 2
 """PUB/SUB keep at most 2 weight messages; an older one is dropped, the newest is all that matters."""
 ROUTER_HWM = 1000

@@ -1,5 +1,5 @@
-"""The run configuration: one frozen dataclass per service, composed into `RunConfig`, plus
-named presets. `python -m learner.main --preset NAME --ppo.lr 1e-4 ...` starts from a preset and
+"""The run configuration: one frozen dataclass per service, composed into `RunConfig` (named
+presets live in `learner.presets`). `python -m learner.main --preset NAME --ppo.lr 1e-4 ...` starts from a preset and
 overrides any field; `--help` lists every option with its docstring (tyro)."""
 
 from __future__ import annotations
@@ -107,23 +107,3 @@ class RunConfig:
             else:
                 kwargs[k] = v
         return RunConfig(**kwargs)
-
-
-PRESETS: dict[str, tuple[str, RunConfig]] = {
-    "reach": (
-        "two-link arm reaches sampled targets: the backbone's learnable toy task (~2 min on 2 cores)",
-        RunConfig(),
-    ),
-    "reach-tiny": (
-        "a few iterations of reach for smoke tests",
-        RunConfig(
-            name="reach-tiny",
-            total_env_steps=3 * 1024,
-            steps_per_iteration=1024,
-            checkpoint_every=1,
-            actors=ActorConfig(num_actors=2, envs_per_actor=4, unroll_length=32),
-            sampler=SamplerConfig(p_mcmc=2, n_mcmc=200, vm_fit_steps=20),
-            vm_plot_every=1,
-        ),
-    ),
-}

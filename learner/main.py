@@ -16,7 +16,8 @@ import sys
 
 import tyro
 
-from learner.config import PRESETS, RunConfig
+from learner.config import RunConfig
+from learner.presets import PRESETS
 
 DEFAULT_PRESET = "reach"
 

@@ -119,7 +119,8 @@ class PPO:
 
     def __init__(self, policy: GaussianPolicy, value: ValueNet, cfg: PPOConfig):
         self.policy, self.value, self.cfg = policy, value, cfg
-        self.optimizer = torch.optim.Adam([*policy.parameters(), *value.parameters()], lr=cfg.lr)
+        # NOTE: fused Adam: on CPU the default per-tensor path cost a quarter of each update.
+        self.optimizer = torch.optim.Adam([*policy.parameters(), *value.parameters()], lr=cfg.lr, fused=True)
         self.lr = cfg.lr
         self.skipped_updates = 0
         """Minibatches whose loss was not finite (skipped, never applied)."""

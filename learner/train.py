@@ -77,30 +77,49 @@ def prepare_run_dir(cfg: RunConfig) -> tuple[Path, tuple[Path, dict] | None]:
     return run_dir, resume_from
 
 
-def collect(learner: Learner, transport: LearnerTransport, pool, cfg: RunConfig, stop: StopFlag, serial: bool, out: RunLog):
-    """Gather at least `steps_per_iteration` fresh transitions; None if stopped first."""
-    unrolls, steps = [], 0
-    last_data = time.monotonic()
-    while steps < cfg.steps_per_iteration:
-        if stop:
-            return None
-        pool.pump()
-        got = transport.receive(0 if serial else 50, learner.policy_version, cfg.max_policy_lag)
-        for u in got:
-            unrolls.append(u)
+class Collector:
+    """Gathers each iteration's batch: exactly `steps_per_iteration` transitions (rounded up to
+    whole unrolls), oldest first. Unrolls that arrive beyond that wait for the next iteration,
+    where they are used if still within the allowed policy lag, else dropped and counted."""
+
+    def __init__(self, transport: LearnerTransport, pool, cfg: RunConfig, stop: StopFlag, serial: bool, out: RunLog):
+        self.transport, self.pool, self.cfg, self.stop, self.serial, self.out = transport, pool, cfg, stop, serial, out
+        self.pending: list = []
+
+    def _fresh(self, policy_version: int) -> None:
+        keep = [u for u in self.pending if policy_version - u.policy_version <= self.cfg.max_policy_lag]
+        self.transport.counters["stale_unrolls"] += len(self.pending) - len(keep)
+        self.pending = keep
+
+    def next_batch(self, policy_version: int) -> list | None:
+        """The next batch, or None if a stop was requested first."""
+        self._fresh(policy_version)
+        last_data = time.monotonic()
+        while sum(u.rewards.size for u in self.pending) < self.cfg.steps_per_iteration:
+            if self.stop:
+                return None
+            self.pool.pump()
+            got = self.transport.receive(0 if self.serial else 50, policy_version, self.cfg.max_policy_lag)
+            self.pending.extend(got)
+            if got:
+                last_data = time.monotonic()
+            elif time.monotonic() - last_data > WAIT_WARN_S:
+                alive = self.pool.alive()
+                self.out.line(f"[morphmimic] waiting for unrolls: {alive} rollout actor(s) alive, counters {dict(self.transport.counters)}")
+                if alive == 0:
+                    raise RuntimeError("every rollout actor is gone; stopping (see the log above for why)")
+                last_data = time.monotonic()
+        batch, steps = [], 0
+        while steps < self.cfg.steps_per_iteration:
+            u = self.pending.pop(0)
+            batch.append(u)
             steps += u.rewards.size
-        if got:
-            last_data = time.monotonic()
-        elif time.monotonic() - last_data > WAIT_WARN_S:
-            alive = pool.alive()
-            out.line(f"[morphmimic] waiting for unrolls: {alive} rollout actor(s) alive, counters {dict(transport.counters)}")
-            if alive == 0:
-                raise RuntimeError("every rollout actor is gone; stopping (see the log above for why)")
-            last_data = time.monotonic()
-    return unrolls
+        return batch
 
 
-def train(cfg: RunConfig) -> int:
+def train(cfg: RunConfig, on_iteration=None) -> int:
+    """Run training to the step budget; `on_iteration(metrics)` is called after each iteration
+    (benchmarks use it). Returns the process exit code."""
     run_dir, resume_from = prepare_run_dir(cfg)
     out = RunLog(run_dir, quiet=cfg.quiet)
     stop = StopFlag()
@@ -128,12 +147,13 @@ def train(cfg: RunConfig) -> int:
         out.line(f"[morphmimic] run {run_dir} | mode {ctx.kind if ctx else 'serial'} | endpoints {endpoints}")
         transport.publish(learner.weights_msg())
         pool = SerialActorPool(cfg, endpoints) if serial else RayActorPool(cfg, endpoints, ctx)
+        collector = Collector(transport, pool, cfg, stop, serial, out)
         start_steps, start_time = learner.env_steps, time.monotonic()
         while learner.env_steps < cfg.total_env_steps and not stop:
             if cfg.max_iterations and learner.iteration >= cfg.max_iterations:
                 break
             t0 = time.monotonic()
-            unrolls = collect(learner, transport, pool, cfg, stop, serial, out)
+            unrolls = collector.next_batch(learner.policy_version)
             if unrolls is None:
                 break
             t1 = time.monotonic()
@@ -149,7 +169,11 @@ def train(cfg: RunConfig) -> int:
             rate = (learner.env_steps - start_steps) / max(time.monotonic() - start_time, 1e-9)
             metrics["charts/steps_per_s"] = rate
             eta = max(0, cfg.total_env_steps - learner.env_steps) / rate if rate > 0 else float("inf")
+            metrics["stats/update_s"] = t2 - t1
+            metrics["stats/env_steps"] = float(learner.env_steps)
             out.iteration(learner.iteration, learner.env_steps, cfg.total_env_steps, rate, eta, metrics)
+            if on_iteration is not None:
+                on_iteration(metrics)
             if learner.iteration % cfg.checkpoint_every == 0:
                 _save(run_dir, learner, sampler, cfg)
                 last_saved = learner.iteration
@@ -185,6 +209,7 @@ def _wire_metrics(transport: LearnerTransport, learner: Learner, pool) -> dict[s
     rejected = sum(v for k, v in c.items() if k.startswith("rejected/")) + sum(transport.snapshots.rejected.values())
     out = {
         "wire/unrolls_received": float(c["unrolls_received"]),
+        "wire/steps_received": float(c["steps_received"]),
         "wire/stale_unrolls": float(c["stale_unrolls"]),
         "wire/seq_gap_unrolls": float(c["seq_gap_unrolls"]),
         "wire/rejected": float(rejected),

@@ -116,6 +116,7 @@ class LearnerTransport:
             self.counters["actor_restarts"] += 1  # a restarted actor counts from 0 again
         self.last_seq[msg.actor_id] = msg.seq
         self.counters["unrolls_received"] += 1
+        self.counters["steps_received"] += int(msg.rewards.size)
         if msg.policy_version < 0 or policy_version - msg.policy_version > max_policy_lag:
             self.counters["stale_unrolls"] += 1
             return None

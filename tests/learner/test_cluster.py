@@ -11,7 +11,7 @@ import pytest
 
 from actors.config import ActorConfig
 from learner import checkpoint
-from learner.config import PRESETS
+from learner.presets import PRESETS
 from learner.train import train
 
 pytestmark = pytest.mark.cluster

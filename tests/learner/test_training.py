@@ -19,7 +19,8 @@ from actors.config import ActorConfig
 from common.policy import GaussianPolicy
 from common.tasks.registry import make_env
 from learner import checkpoint
-from learner.config import PRESETS, RunConfig
+from learner.config import RunConfig
+from learner.presets import PRESETS
 from learner.train import train
 
 ROOT = Path(__file__).resolve().parents[2]
