@@ -20,6 +20,7 @@ import zmq
 from actors.config import ActorConfig
 from actors.draws import DrawCache
 from actors.rollout import RolloutWorker, configure_torch
+from actors.seq_ledger import SeqLedger
 from actors.weights_client import WeightsClient
 from common import sockets, wire
 from common.policy import PolicyConfig
@@ -38,20 +39,27 @@ class RolloutActor:
         cfg: ActorConfig,
         endpoints: dict[str, str],
         seed: int = 0,
+        sampler_handle=None,
     ):
+        """`sampler_handle`: the sampler's Ray actor handle, if any; its endpoint is looked up
+        through it again on every reconnect, so a restarted sampler on a new port is found."""
         configure_torch(cfg.torch_threads)
         self.actor_id, self.cfg = actor_id, cfg
         self._endpoints = dict(endpoints)
         self._stop = threading.Event()
+        self._stall_until = 0.0
         self.sampler = None
         fetch = None
         if endpoints.get("sampler"):
             from sampler.client import SamplerClient  # the sampler package is optional for actors
 
-            self.sampler = SamplerClient(endpoints["sampler"], timeout_s=cfg.sampler_timeout_s, retries=cfg.sampler_retries)
+            lookup = endpoints["sampler"] if sampler_handle is None else _endpoint_lookup(sampler_handle)
+            self.sampler = SamplerClient(lookup, timeout_s=cfg.sampler_timeout_s, retries=cfg.sampler_retries)
             fetch = self._fetch_draws
         self.draws = DrawCache(fetch, task_space(task), cfg.draw_batch, seed=seed + 1)
         self.worker = RolloutWorker(actor_id, task, policy_cfg, cfg, self.draws, seed=seed)
+        self.ledger = SeqLedger(cfg.seq_ledger_dir, actor_id)
+        self.worker.seq = self.ledger.next_seq()
         self.weights = WeightsClient(actor_id, self.endpoints, cfg.weights_timeout_s)
         self.push = sockets.connect_unroll_push(endpoints["unrolls"])
         self.send_stalls = 0
@@ -69,6 +77,8 @@ class RolloutActor:
 
     def _send(self, msg) -> bool:
         frames = wire.encode(msg)
+        if isinstance(msg, wire.UnrollMsg):
+            self.ledger.record(msg.seq)
         while not self._stop.is_set():
             try:
                 self.push.send_multipart(frames, copy=False)
@@ -100,11 +110,18 @@ class RolloutActor:
         """Loop until `stop()` (or `max_seconds`); returns this actor's counters."""
         deadline = None if max_seconds is None else time.monotonic() + max_seconds
         while not self._stop.is_set() and (deadline is None or time.monotonic() < deadline):
+            if time.monotonic() < self._stall_until:  # an injected hang: send nothing at all
+                time.sleep(0.05)
+                continue
             self.run_once(weights_timeout_ms=0 if self.worker.policy_version >= 0 else 200)
         return self.stats()
 
     def stop(self) -> None:
         self._stop.set()
+
+    def stall(self, seconds: float) -> None:
+        """Fault injection: hang for `seconds` (no unrolls, no heartbeats), then resume."""
+        self._stall_until = time.monotonic() + seconds
 
     def stats(self) -> dict:
         return {
@@ -119,10 +136,22 @@ class RolloutActor:
         }
 
     def close(self) -> None:
+        self.ledger.close()
         self.push.close(linger=0)
         self.weights.close()
         if self.sampler is not None:
             self.sampler.close()
+
+
+def _endpoint_lookup(handle):
+    """An endpoint callable that asks the sampler's Ray actor where it listens now."""
+
+    def lookup() -> str:
+        import ray
+
+        return ray.get(handle.endpoint.remote(), timeout=10)
+
+    return lookup
 
 
 def _node_id() -> str:

@@ -27,3 +27,6 @@ class ActorConfig:
     """An actor sends a heartbeat when it has sent nothing for this long."""
     num_cpus: float = 1.0
     """Ray CPUs reserved per rollout actor."""
+    seq_ledger_dir: str = ""
+    """Directory for durable unroll sequence numbers (see actors/seq_ledger.py); empty: the run
+    directory's `ledger/` when every node is on this machine, else none."""

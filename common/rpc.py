@@ -35,7 +35,11 @@ class RpcClient:
 
     def _socket(self) -> zmq.Socket:
         if self._sock is None:
-            self._sock = sockets.connect_dealer(self._lookup())
+            try:
+                endpoint = self._lookup()
+            except Exception as exc:  # noqa: BLE001 - a lookup that fails means "not there now"
+                raise ServiceUnavailable(f"could not look up the service endpoint: {exc}") from None
+            self._sock = sockets.connect_dealer(endpoint)
         return self._sock
 
     def _reset(self) -> None:
@@ -65,7 +69,7 @@ class RpcClient:
             # NOTE: a DEALER that timed out may still receive the late reply later; a fresh socket
             # guarantees the next reply we read answers the next request (Lazy Pirate).
             self._reset()
-        raise ServiceUnavailable(f"no reply to {type(request).KIND} from {self._lookup()} after {self.retries} tries")
+        raise ServiceUnavailable(f"no reply to {type(request).KIND} after {self.retries} tries of {self.timeout_ms} ms")
 
     def close(self) -> None:
         if self._sock is not None:
@@ -96,8 +100,8 @@ class RouterServer:
                 request = wire.decode(body)
                 wire.check_finite(request)
                 reply = self.handler(request)
-            except (wire.WireError, ValueError) as exc:
-                kind = getattr(exc, "kind", "invalid")
+            except Exception as exc:  # noqa: BLE001 - nothing a peer sends may stop the service
+                kind = getattr(exc, "kind", "invalid" if isinstance(exc, ValueError) else "internal")
                 if self.rejected[kind] == 0:
                     log.warning("%s: rejected a request (%s): %s", self.name, kind, exc)
                 self.rejected[kind] += 1

@@ -48,6 +48,7 @@ def bind_unroll_pull(address: str) -> tuple[zmq.Socket, str]:
     """Learner side of the unroll stream."""
     sock = context().socket(zmq.PULL)
     sock.setsockopt(zmq.RCVHWM, UNROLL_RECV_HWM)
+    sock.setsockopt(zmq.MAXMSGSIZE, 256 * 1024 * 1024)  # a larger frame drops that peer's connection
     sock.setsockopt(zmq.LINGER, LINGER_MS)
     return sock, _bind(sock, address)
 

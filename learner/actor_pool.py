@@ -47,7 +47,7 @@ class SerialActorPool:
 
 
 class RayActorPool:
-    def __init__(self, cfg: RunConfig, endpoints: dict[str, str], ctx) -> None:
+    def __init__(self, cfg: RunConfig, endpoints: dict[str, str], ctx, sampler_handle=None) -> None:
         import ray
 
         from learner import cluster
@@ -57,7 +57,7 @@ class RayActorPool:
         opts = cluster.actor_options(ctx, cluster.ROLLOUT_RESOURCE, 1.0, cfg.actors.num_cpus)
         self.handles = [
             remote_cls.options(max_concurrency=2, max_restarts=cfg.actor_max_restarts, **opts).remote(
-                i, cfg.task, cfg.policy, cfg.actors, endpoints, cfg.seed + 1000 * (i + 1)
+                i, cfg.task, cfg.policy, cfg.actors, endpoints, cfg.seed + 1000 * (i + 1), sampler_handle
             )
             for i in range(cfg.actors.num_actors)
         ]
@@ -66,26 +66,39 @@ class RayActorPool:
         self.dead: set[int] = set()
 
     def pump(self) -> None:
-        """Resubmit the loop of an actor whose `run` ended by a crash (Ray restarts the process
-        up to `actor_max_restarts` times; the loop call itself must be made again)."""
+        """Resubmit the loop of an actor whose `run` ended by a crash. Ray restarts the process
+        (up to `actor_max_restarts` times, -1 = always, on any node with a free
+        `morphmimic_rollout`); the loop call itself must be made again, and Ray holds it until
+        the actor is back, so a lost node's actors return when capacity does."""
         refs = list(self.runs.values())
         done, _ = self.ray.wait(refs, num_returns=len(refs), timeout=0)
         for ref in done:
             i = next(k for k, v in self.runs.items() if v == ref)
             try:
                 self.ray.get(ref)
-                self.dead.add(i)  # returned normally: stopped
-                del self.runs[i]
-            except self.ray.exceptions.ActorDiedError:
-                log.error("rollout actor %d died for good", i)
-                self.dead.add(i)
+                self.dead.add(i)  # returned normally: it was told to stop
                 del self.runs[i]
             except self.ray.exceptions.RayError as exc:
+                if self._gone_for_good(i):
+                    log.error("rollout actor %d is dead and will not restart (%s)", i, type(exc).__name__)
+                    self.dead.add(i)
+                    del self.runs[i]
+                    continue
                 self.restarts += 1
                 log.warning("rollout actor %d failed (%s); resubmitting its loop", i, type(exc).__name__)
                 self.runs[i] = self.handles[i].run.remote()
 
+    def _gone_for_good(self, i: int) -> bool:
+        try:
+            from ray.util.state import get_actor
+
+            state = get_actor(self.handles[i]._actor_id.hex(), timeout=10)
+            return state is not None and state.state == "DEAD"
+        except Exception:  # noqa: BLE001 - state API unavailable: assume Ray may restart it
+            return False
+
     def alive(self) -> int:
+        """Actors whose loop is submitted (running, or waiting for Ray to restart them)."""
         return len(self.runs)
 
     def stats(self) -> list[dict]:

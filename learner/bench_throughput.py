@@ -44,7 +44,7 @@ def end_to_end(cfg: RunConfig, warmup_iterations: int) -> dict[str, float]:
     from learner.train import train
 
     marks: list[tuple[float, dict]] = []
-    train(cfg, on_iteration=lambda m: marks.append((time.perf_counter(), dict(m))))
+    train(cfg, on_iteration=lambda run, m: marks.append((time.perf_counter(), dict(m))))
     if len(marks) <= warmup_iterations + 1:
         raise SystemExit(f"only {len(marks)} iterations ran; raise --iterations")
     (t0, m0), (t1, m1) = marks[warmup_iterations], marks[-1]

@@ -63,7 +63,10 @@ def find_running_cluster(explicit: str = "") -> tuple[str, str] | None:
 
 def _use_token_auth_if_available() -> None:
     """Ray >= 2.5x starts `ray start` clusters with token authentication and keeps the token in
-    ~/.ray/auth_token, but a driver attaching to them sends it only in token mode."""
+    ~/.ray/auth_token, but a driver attaching to them sends it only in token mode.
+
+    NOTE: not for an explicit --ray-address: re-initializing Ray's config in a process that
+    also hosts a `ray.cluster_utils.Cluster` (tests) cancels the first actor it creates."""
     if os.environ.get("RAY_AUTH_MODE"):
         return
     try:
@@ -82,7 +85,8 @@ def connect(mode: str, explicit_address: str, num_actors: int, actor_cpus: float
     if found is not None:
         address, how = found
         print(f"[morphmimic] attaching to the running Ray cluster at {address} (found via {how})", flush=True)
-        _use_token_auth_if_available()
+        if how != "--ray-address":
+            _use_token_auth_if_available()
         ray.init(address=address, logging_level=logging.WARNING, log_to_driver=True)
         kind = "cluster"
     elif mode == "cluster":

@@ -55,8 +55,12 @@ class RunConfig:
     """(parameters, V(s)) pairs sent to the sampler per iteration for the marginal value fit."""
     vm_plot_every: int = 20
     """Write the sampler's Vm map PNG every this many iterations (0: only at the end)."""
-    actor_max_restarts: int = 3
-    """Ray restarts a crashed rollout actor up to this many times."""
+    actor_max_restarts: int = -1
+    """Ray restarts a crashed rollout actor up to this many times (-1: always, including when a
+    lost node's capacity returns)."""
+    stall_timeout_s: float = 20.0
+    """An actor that sent neither unroll nor heartbeat for this long is counted as stalled and
+    excluded until it sends again."""
     learner_threads: int = 0
     """Torch threads of the learner; 0: the cores this machine has left after the local actors
     (at least 1). NOTE: more threads than free cores makes OpenMP spin against the actors."""

@@ -33,6 +33,10 @@ class SamplerHandle:
     thread: threading.Thread | None = None
     stop_event: threading.Event | None = None
     failures: int = 0
+    saved_state: dict[str, Any] | None = None
+    """The sampler state of the newest checkpoint: restored into a restarted sampler."""
+    restores: int = 0
+    pairs_seen: float = 0.0
 
     @staticmethod
     def start(config: SamplerConfig, space: ParamSpace, clips: Sequence[tuple[str, str]], ctx) -> "SamplerHandle":
@@ -51,7 +55,11 @@ class SamplerHandle:
         opts.pop("scheduling_strategy", None)
         handle = ray.remote(SamplerActor).options(max_restarts=-1, **opts).remote(config, space, list(clips))
         endpoint = ray.get(handle.endpoint.remote(), timeout=120)
-        return SamplerHandle(endpoint, SamplerClient(endpoint), config, space, clips, ray_handle=handle)
+
+        def lookup() -> str:  # a restarted sampler binds a new port: ask it where, every reconnect
+            return ray.get(handle.endpoint.remote(), timeout=10)
+
+        return SamplerHandle(endpoint, SamplerClient(lookup), config, space, clips, ray_handle=handle)
 
     def _call(self, what: str, fn, default):
         try:
@@ -64,6 +72,15 @@ class SamplerHandle:
     def report_and_tick(self, params: np.ndarray, values: np.ndarray, iteration: int) -> dict[str, float]:
         self._call("report", lambda: self.client.report(params, values), None)
         stats = self._call("tick", lambda: self.client.tick(iteration), {})
+        seen = stats.get("vm/pairs_seen", 0.0)
+        restarted = seen < self.pairs_seen  # a live sampler's count never decreases
+        self.pairs_seen = max(self.pairs_seen, seen) if not restarted else seen
+        if restarted and self.saved_state is not None:
+            # A restarted sampler came back empty: give it the checkpointed state, then tick again.
+            log.warning("sampler restarted without its state; restoring the last checkpoint's")
+            if self._call("set_state", lambda: self.client.set_state(self.saved_state), False) is None:
+                self.restores += 1
+                stats = self._call("tick", lambda: self.client.tick(iteration), {})
         out = {f"sampler/{k}": float(v) for k, v in stats.items()}
         out["sampler/learner_call_failures"] = float(self.failures)
         return out

@@ -32,6 +32,11 @@ class LearnerTransport:
         self.current: wire.WeightsMsg | None = None
         self.counters: collections.Counter[str] = collections.Counter()
         self.last_seq: dict[int, int] = {}
+        """Highest unroll sequence number received per actor (kept across learner restarts)."""
+        self.received: collections.Counter[int] = collections.Counter()
+        """Valid unrolls received per actor."""
+        self.sampler_outages: dict[int, int] = {}
+        """Latest cumulative sampler-outage count each actor reported."""
         self.last_seen: dict[int, float] = {}
         self.bytes_received = 0
         self.poller = zmq.Poller()
@@ -106,21 +111,36 @@ class LearnerTransport:
         if isinstance(msg, wire.HeartbeatMsg):
             self.counters["heartbeats"] += 1
             return None
-        previous = self.last_seq.get(msg.actor_id)
-        if previous is not None and msg.seq > previous + 1:
+        # Numbering starts at 0 and, with a sequence ledger, survives actor restarts: any
+        # number skipped is an unroll that was sent (or queued) and never arrived.
+        previous = self.last_seq.get(msg.actor_id, -1)
+        if msg.seq > previous + 1:
             gap = msg.seq - previous - 1
             if self.counters["seq_gap_unrolls"] == 0:
                 log.warning("actor %d skipped %d unroll(s) (seq %d -> %d)", msg.actor_id, gap, previous, msg.seq)
             self.counters["seq_gap_unrolls"] += gap
-        if previous is not None and msg.seq <= previous:
-            self.counters["actor_restarts"] += 1  # a restarted actor counts from 0 again
+        elif msg.seq <= previous:
+            self.counters["seq_restarts"] += 1  # an actor without a ledger restarted from 0
         self.last_seq[msg.actor_id] = msg.seq
+        self.received[msg.actor_id] += 1
+        self.sampler_outages[msg.actor_id] = msg.sampler_outages
         self.counters["unrolls_received"] += 1
         self.counters["steps_received"] += int(msg.rewards.size)
         if msg.policy_version < 0 or policy_version - msg.policy_version > max_policy_lag:
             self.counters["stale_unrolls"] += 1
             return None
         return msg
+
+    def state_dict(self) -> dict:
+        """What a resumed learner needs to keep counting gaps and losses where it left off."""
+        return {
+            "last_seq": {str(k): int(v) for k, v in self.last_seq.items()},
+            "counters": {k: int(v) for k, v in self.counters.items()},
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        self.last_seq = {int(k): int(v) for k, v in state["last_seq"].items()}
+        self.counters.update(state["counters"])
 
     def close(self) -> None:
         for sock in (self.pull, self.pub, self.snapshots.sock):

@@ -1,0 +1,235 @@
+"""Fault injection on the local two-worker test cluster: an actor process killed, a worker node
+lost and returned, a stalled actor, a sampler outage, hostile bytes on every socket, and a
+learner SIGKILLed and resumed. Each test asserts that iterations keep increasing and that every
+lost or refused message shows up in a counter."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import msgpack
+import numpy as np
+import pytest
+import zmq
+
+from actors.config import ActorConfig
+from common import wire
+from learner import checkpoint
+from learner.presets import PRESETS
+from learner.train import Run, train
+
+pytestmark = pytest.mark.cluster
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _cfg(tmp_path: Path, address: str, **overrides):
+    base = dataclasses.replace(
+        PRESETS["reach-tiny"][1], runs_dir=str(tmp_path), quiet=True, mode="cluster", ray_address=address,
+        total_env_steps=10**9, checkpoint_every=1,
+        actors=ActorConfig(num_actors=2, envs_per_actor=4, unroll_length=32, draw_batch=4,
+                           sampler_timeout_s=0.5, sampler_retries=1),
+    )
+    return dataclasses.replace(base, **overrides)
+
+
+def _ledger_total(run_dir: Path) -> dict[int, int]:
+    """Unrolls each actor numbered (sent or about to be sent), from the durable ledger."""
+    return {int(p.stem.split("-")[1]): int(p.read_text().strip("\0 \n")) + 1 for p in (run_dir / "ledger").glob("actor-*.seq")}
+
+
+def _assert_every_unroll_accounted(run: Run) -> None:
+    """Ground truth (the ledger) = received + counted gaps + still in flight at the end."""
+    sent = _ledger_total(run.run_dir)
+    t = run.transport
+    for actor_id, total in sent.items():
+        last = t.last_seq.get(actor_id, -1)
+        in_flight_at_end = total - 1 - last
+        assert in_flight_at_end >= 0
+        assert t.received[actor_id] + 0 <= total
+    received = sum(t.received.values())
+    in_flight = sum(total - 1 - t.last_seq.get(a, -1) for a, total in sent.items())
+    assert sum(sent.values()) == received + t.counters["seq_gap_unrolls"] + in_flight
+
+
+@pytest.fixture
+def cluster():
+    from deploy.local_cluster import start
+
+    c = start(rollout_per_worker=1, cpus_per_worker=1)
+    yield c
+    c.shutdown()
+
+
+def test_killed_actor_is_restarted_and_in_flight_losses_are_counted(cluster, tmp_path):
+    seen: dict = {}
+
+    def hook(run: Run, metrics: dict) -> None:
+        it = run.learner.iteration
+        if it == 2:
+            import ray
+
+            pid = ray.get(run.pool.handles[0].stats.remote())["pid"]
+            os.kill(pid, signal.SIGKILL)
+        if metrics["faults/actor_restarts"] >= 1 and metrics["health/actors_reporting"] == 2 and it >= 6:
+            seen["recovered_at"] = it
+            run.stop.event.set()
+        seen["run"] = run
+
+    assert train(_cfg(tmp_path, cluster.address, max_iterations=40), on_iteration=hook) == 0
+    run = seen["run"]
+    assert "recovered_at" in seen, "the killed actor never came back"
+    assert run.learner.iteration >= 6
+    _assert_every_unroll_accounted(run)
+
+
+def test_lost_node_leaves_training_elastic_and_actors_return_with_capacity(cluster, tmp_path):
+    alive: list[float] = []
+    events: dict = {}
+
+    def hook(run: Run, metrics: dict) -> None:
+        it = run.learner.iteration
+        alive.append(metrics["health/actors_reporting"])
+        if it == 2:
+            import ray
+
+            node_id = ray.get(run.pool.handles[1].stats.remote())["node_id"]
+            node = next(n for n in cluster.worker_nodes if n.node_id == node_id)
+            events["removed"] = it
+            cluster.remove_node(node)
+        if "removed" in events and "added" not in events and metrics["health/actors_reporting"] == 1:
+            events["degraded_at"] = it
+            events["added"] = it
+            cluster.add_node(num_cpus=1, resources={"morphmimic_rollout": 1})
+        if "added" in events and metrics["health/actors_reporting"] == 2 and it > events["added"]:
+            events["back_at"] = it
+            run.stop.event.set()
+
+    cfg = _cfg(tmp_path, cluster.address, max_iterations=60, stall_timeout_s=4.0)
+    assert train(cfg, on_iteration=hook) == 0
+    assert "degraded_at" in events, f"never saw training continue with one actor: {alive}"
+    assert "back_at" in events, f"actors did not come back with capacity: {alive}"
+
+
+def test_stalled_actor_is_detected_excluded_and_readmitted(cluster, tmp_path):
+    seen: dict = {}
+
+    def hook(run: Run, metrics: dict) -> None:
+        if run.learner.iteration == 2:
+            run.pool.handles[0].stall.remote(8.0)
+        if metrics["health/stalls"] >= 1:
+            seen.setdefault("stalled_at", run.learner.iteration)
+        if metrics["health/readmissions"] >= 1:
+            seen["readmitted_at"] = run.learner.iteration
+            run.stop.event.set()
+
+    assert train(_cfg(tmp_path, cluster.address, max_iterations=80, stall_timeout_s=3.0), on_iteration=hook) == 0
+    assert "stalled_at" in seen and "readmitted_at" in seen, seen
+    assert seen["readmitted_at"] > seen["stalled_at"]
+
+
+def test_sampler_outage_degrades_then_recovers_with_its_state(cluster, tmp_path):
+    import ray
+
+    seen: dict = {}
+
+    def hook(run: Run, metrics: dict) -> None:
+        it = run.learner.iteration
+        handle = run.sampler.ray_handle
+        if it == 3:
+            ray.get(handle.stop.remote())  # the service goes silent: clients time out
+            seen["down_at"] = it
+        if "down_at" in seen and "restarted_at" not in seen and metrics["faults/actor_sampler_outages"] > 0:
+            ray.kill(handle, no_restart=False)  # Ray brings it back, empty, on a new port
+            seen["restarted_at"] = it
+        if metrics["faults/sampler_restores"] >= 1:
+            seen["restored_at"] = it
+            seen["vm_pairs"] = metrics.get("sampler/vm/pairs_seen", 0.0)
+            run.stop.event.set()
+
+    assert train(_cfg(tmp_path, cluster.address, max_iterations=60), on_iteration=hook) == 0
+    assert "restarted_at" in seen, f"actors never counted the outage: {seen}"
+    assert "restored_at" in seen, f"the restarted sampler never got its state back: {seen}"
+    assert seen["vm_pairs"] > 0  # the restored marginal value kept what it had learned
+
+
+def _hostile_frames(obs_dim: int = 12) -> list[tuple[str, list[bytes]]]:
+    good = wire.UnrollMsg(
+        actor_id=99, seq=0, policy_version=0, obs=np.zeros((2, 1, obs_dim), np.float32),
+        next_obs=np.zeros((2, 1, obs_dim), np.float32), actions=np.zeros((2, 1, 2), np.float32),
+        logp=np.zeros((2, 1), np.float32), rewards=np.zeros((2, 1), np.float32),
+        terminated=np.zeros((2, 1), bool), truncated=np.zeros((2, 1), bool), params=np.zeros((2, 1, 2), np.float32),
+    )
+    frames = [bytes(f) for f in wire.encode(good)]
+    nan = [bytes(f) for f in wire.encode(dataclasses.replace(good, rewards=np.full((2, 1), np.nan, np.float32)))]
+    wrong_shape = [bytes(f) for f in wire.encode(dataclasses.replace(good, obs=np.zeros((2, 1, obs_dim + 1), np.float32)))]
+    header = msgpack.unpackb(frames[0])
+    header["v"] = 42
+    return [
+        ("malformed", [b"\x00garbage\xff"]),
+        ("malformed", frames[:-3]),  # truncated multipart
+        ("version", [msgpack.packb(header), *frames[1:]]),
+        ("nonfinite", nan),
+        ("bad_shape", wrong_shape),
+    ]
+
+
+def test_hostile_bytes_are_rejected_counted_and_training_continues(cluster, tmp_path):
+    seen: dict = {}
+
+    def hook(run: Run, metrics: dict) -> None:
+        if run.learner.iteration == 2:
+            ctx = zmq.Context.instance()
+            push = ctx.socket(zmq.PUSH)
+            push.setsockopt(zmq.LINGER, 1000)
+            push.connect(run.transport.endpoints["unrolls"])
+            for _, frames in _hostile_frames():
+                push.send_multipart(frames)
+            push.close()
+            for endpoint in (run.transport.endpoints["weights_router"], run.sampler.endpoint):
+                dealer = ctx.socket(zmq.DEALER)
+                dealer.setsockopt(zmq.LINGER, 0)
+                dealer.connect(endpoint)
+                for frames in ([b"", b"\xc1garbage"], [b"", msgpack.packb({"p": wire.PROTOCOL, "k": "tick", "v": 7, "f": {}, "a": []})]):
+                    dealer.send_multipart(frames)
+                    assert dealer.poll(5000), f"{endpoint} stopped answering"
+                    reply = wire.decode(dealer.recv_multipart()[1:])
+                    assert isinstance(reply, wire.ErrorMsg)
+                dealer.close()
+        if run.learner.iteration == 6:
+            seen["counters"] = dict(run.transport.counters)
+            seen["weights_rejected"] = dict(run.transport.snapshots.rejected)
+            seen["sampler_stats"] = run.sampler.client.stats()
+
+    assert train(_cfg(tmp_path, cluster.address, max_iterations=6), on_iteration=hook) == 0
+    c = seen["counters"]
+    for kind in ("malformed", "version", "nonfinite", "bad_shape"):
+        assert c[f"rejected/{kind}"] >= 1, (kind, c)
+    assert sum(seen["weights_rejected"].values()) == 2
+    assert seen["sampler_stats"]["requests/rejected"] >= 2
+
+
+def test_learner_sigkill_then_resume_continues_from_last_checkpoint(tmp_path):
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    args = [sys.executable, "-m", "learner.main", "--preset", "reach-tiny", "--mode", "local",
+            "--runs-dir", str(tmp_path), "--total-env-steps", "1000000000", "--checkpoint-every", "1"]
+    proc = subprocess.Popen(args, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    deadline = time.monotonic() + 180
+    while time.monotonic() < deadline:
+        if proc.stdout.readline().startswith("iter     3"):
+            break
+    proc.kill()  # SIGKILL: no handler runs, no final checkpoint
+    proc.wait(timeout=30)
+    ckpt = tmp_path / "reach-tiny" / "ckpt"
+    before = checkpoint.load_latest(ckpt)[1]["iteration"]
+    assert before >= 2
+    resumed = subprocess.run([*args, "--max-iterations", str(before + 2)], cwd=ROOT, env=env,
+                             capture_output=True, text=True, timeout=300)
+    assert resumed.returncode == 0, resumed.stdout + resumed.stderr
+    assert f"at iteration {before}" in resumed.stdout
+    assert checkpoint.load_latest(ckpt)[1]["iteration"] == before + 2
