@@ -86,6 +86,8 @@ class RouterServer:
         self.name = name
         self.rejected: collections.Counter[str] = collections.Counter()
         self.served = 0
+        self.undeliverable = 0
+        """Replies to peers that had gone (a client that timed out and reconnected)."""
 
     def serve_pending(self, timeout_ms: int = 0, max_requests: int = 1000) -> int:
         """Answer requests that arrive within `timeout_ms`; returns how many were handled."""
@@ -110,6 +112,6 @@ class RouterServer:
             try:
                 self.sock.send_multipart([identity, b"", *wire.encode(reply)], copy=False)
             except zmq.ZMQError as exc:  # EHOSTUNREACH with ROUTER_MANDATORY: the peer left
-                self.rejected["unreachable_peer"] += 1
+                self.undeliverable += 1
                 log.debug("%s: could not reply to a departed peer: %s", self.name, exc)
         return handled

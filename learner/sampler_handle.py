@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
@@ -20,6 +21,11 @@ from sampler.client import SamplerClient
 from sampler.config import SamplerConfig
 
 log = logging.getLogger(__name__)
+
+RETRY_AFTER_S = 10.0
+"""After the sampler failed to answer, the learner leaves it alone this long."""
+LEARNER_TIMEOUT_S = 3.0
+"""A tick may fit Vm and refill the buffer (tenths of a second; more on a loaded machine)."""
 
 
 @dataclass
@@ -37,6 +43,7 @@ class SamplerHandle:
     """The sampler state of the newest checkpoint: restored into a restarted sampler."""
     restores: int = 0
     pairs_seen: float = 0.0
+    down_until: float = 0.0
 
     @staticmethod
     def start(config: SamplerConfig, space: ParamSpace, clips: Sequence[tuple[str, str]], ctx) -> "SamplerHandle":
@@ -45,7 +52,7 @@ class SamplerHandle:
 
             service, thread, stop_event = start_in_thread(config, space, clips)
             endpoint = service.endpoint
-            return SamplerHandle(endpoint, SamplerClient(endpoint), config, space, clips, thread=thread, stop_event=stop_event)
+            return SamplerHandle(endpoint, SamplerClient(endpoint, timeout_s=LEARNER_TIMEOUT_S, retries=2), config, space, clips, thread=thread, stop_event=stop_event)
         import ray
 
         from learner import cluster
@@ -59,22 +66,30 @@ class SamplerHandle:
         def lookup() -> str:  # a restarted sampler binds a new port: ask it where, every reconnect
             return ray.get(handle.endpoint.remote(), timeout=10)
 
-        return SamplerHandle(endpoint, SamplerClient(lookup), config, space, clips, ray_handle=handle)
+        return SamplerHandle(endpoint, SamplerClient(lookup, timeout_s=LEARNER_TIMEOUT_S, retries=2), config, space, clips, ray_handle=handle)
 
     def _call(self, what: str, fn, default):
+        """Call the sampler; on failure count it and, for an outage, skip further calls for
+        `RETRY_AFTER_S` (a circuit breaker: the learner must not spend each iteration in timeouts)."""
+        if time.monotonic() < self.down_until:
+            return default
         try:
             return fn()
         except (ServiceUnavailable, WireError) as exc:
             self.failures += 1
-            log.warning("sampler %s failed (%s); continuing without it this iteration", what, exc)
+            if isinstance(exc, ServiceUnavailable):
+                self.down_until = time.monotonic() + RETRY_AFTER_S
+            log.warning("sampler %s failed (%s); continuing without it", what, exc)
             return default
 
     def report_and_tick(self, params: np.ndarray, values: np.ndarray, iteration: int) -> dict[str, float]:
         self._call("report", lambda: self.client.report(params, values), None)
         stats = self._call("tick", lambda: self.client.tick(iteration), {})
-        seen = stats.get("vm/pairs_seen", 0.0)
-        restarted = seen < self.pairs_seen  # a live sampler's count never decreases
-        self.pairs_seen = max(self.pairs_seen, seen) if not restarted else seen
+        restarted = False
+        if stats:  # no answer says nothing about a restart
+            seen = stats.get("vm/pairs_seen", 0.0)
+            restarted = seen < self.pairs_seen  # a live sampler's count never decreases
+            self.pairs_seen = seen if restarted else max(self.pairs_seen, seen)
         if restarted and self.saved_state is not None:
             # A restarted sampler came back empty: give it the checkpointed state, then tick again.
             log.warning("sampler restarted without its state; restoring the last checkpoint's")

@@ -114,22 +114,46 @@ def test_cli_local_mode_leaves_config_checkpoint_log_and_vm_map(tmp_path):
     assert len(actors) == 2 and all(a["env_steps"] > 0 for a in actors)
 
 
-def test_sigterm_checkpoints_and_exits_zero(tmp_path):
-    proc = _cli("--preset", "reach-tiny", "--mode", "serial", "--runs-dir", str(tmp_path),
+def _descendants(pid: int) -> set[int]:
+    """Every process below `pid`, from /proc (no psutil needed)."""
+    found, todo = set(), [pid]
+    while todo:
+        p = todo.pop()
+        for task in Path(f"/proc/{p}/task").glob("*"):
+            try:
+                children = (task / "children").read_text().split()
+            except OSError:
+                continue
+            for child in map(int, children):
+                if child not in found:
+                    found.add(child)
+                    todo.append(child)
+    return found
+
+
+def test_sigterm_in_local_mode_checkpoints_exits_zero_and_leaves_no_process(tmp_path):
+    proc = _cli("--preset", "reach-tiny", "--mode", "local", "--runs-dir", str(tmp_path),
                 "--total-env-steps", "100000000", "--checkpoint-every", "1000")
     lines = []
-    deadline = time.monotonic() + 120
+    deadline = time.monotonic() + 180
     while time.monotonic() < deadline:
         line = proc.stdout.readline()
         lines.append(line)
         if line.startswith("iter     2"):
             break
+    children = _descendants(proc.pid)
+    assert children, "local mode should have started Ray processes"
     proc.send_signal(signal.SIGTERM)
-    out, _ = proc.communicate(timeout=60)
+    out, _ = proc.communicate(timeout=90)
     assert proc.returncode == 0, "".join(lines) + out
     assert "stopped by signal" in out
     path, state = checkpoint.load_latest(tmp_path / "reach-tiny" / "ckpt")
     assert state["iteration"] >= 2
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline and any(Path(f"/proc/{c}").exists() for c in children):
+        time.sleep(0.5)
+    left = [c for c in children if Path(f"/proc/{c}").exists()]
+    assert not left, f"processes left behind: {left}"
 
 
 def test_bad_config_gets_a_clear_error(tmp_path):
