@@ -33,7 +33,7 @@ def parse(argv: list[str]) -> RunConfig:
         + "\npresets (--preset NAME, default "
         + DEFAULT_PRESET
         + "):\n"
-        + "\n".join(f"  {name:<14} {text}" for name, (text, _) in PRESETS.items())
+        + "\n".join(f"  {name:<{max(map(len, PRESETS))}}  {text}" for name, (text, _) in PRESETS.items())
     )
     try:
         return tyro.cli(RunConfig, default=PRESETS[known.preset][1], args=rest, description=description,

@@ -191,17 +191,23 @@ def test_hostile_bytes_are_rejected_counted_and_training_continues(cluster, tmp_
             for _, frames in _hostile_frames():
                 push.send_multipart(frames)
             push.close()
+            # NOTE: this hook runs on the learner's own thread, so replies are read later, after
+            # the learner has been back in its receive loop.
+            seen["dealers"] = []
             for endpoint in (run.transport.endpoints["weights_router"], run.sampler.endpoint):
                 dealer = ctx.socket(zmq.DEALER)
                 dealer.setsockopt(zmq.LINGER, 0)
                 dealer.connect(endpoint)
-                for frames in ([b"", b"\xc1garbage"], [b"", msgpack.packb({"p": wire.PROTOCOL, "k": "tick", "v": 7, "f": {}, "a": []})]):
-                    dealer.send_multipart(frames)
-                    assert dealer.poll(5000), f"{endpoint} stopped answering"
-                    reply = wire.decode(dealer.recv_multipart()[1:])
-                    assert isinstance(reply, wire.ErrorMsg)
-                dealer.close()
+                dealer.send_multipart([b"", b"\xc1garbage"])
+                dealer.send_multipart([b"", msgpack.packb({"p": wire.PROTOCOL, "k": "tick", "v": 7, "f": {}, "a": []})])
+                seen["dealers"].append(dealer)
         if run.learner.iteration == 6:
+            seen["replies"] = []
+            for dealer in seen.pop("dealers"):
+                for _ in range(2):
+                    if dealer.poll(5000):
+                        seen["replies"].append(wire.decode(dealer.recv_multipart()[1:]))
+                dealer.close()
             seen["counters"] = dict(run.transport.counters)
             seen["weights_rejected"] = dict(run.transport.snapshots.rejected)
             seen["sampler_stats"] = run.sampler.client.stats()
@@ -210,6 +216,7 @@ def test_hostile_bytes_are_rejected_counted_and_training_continues(cluster, tmp_
     c = seen["counters"]
     for kind in ("malformed", "version", "nonfinite", "bad_shape"):
         assert c[f"rejected/{kind}"] >= 1, (kind, c)
+    assert len(seen["replies"]) == 4 and all(isinstance(r, wire.ErrorMsg) for r in seen["replies"])
     assert sum(seen["weights_rejected"].values()) == 2
     assert seen["sampler_stats"]["requests/rejected"] >= 2
 
