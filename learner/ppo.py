@@ -37,7 +37,7 @@ class PPOConfig:
     kl_coef: float = 0.0
     """Weight of the KL(old || new) penalty (UniCon 2020 eq. 7); 0 turns it off."""
     kl_target: float = 0.01
-    """Target KL per update, for the adaptive learning rate and the early stop."""
+    """Target KL per update for the adaptive learning rate."""
     max_grad_norm: float = 0.5
     """Global gradient-norm clip."""
     normalize_advantages: bool = True
@@ -131,6 +131,9 @@ class PPO:
             self.lr = self.cfg.lr * max(0.0, 1.0 - fraction_done)
         elif self.cfg.lr_schedule not in ("constant", "adaptive"):
             raise ValueError(f"lr_schedule {self.cfg.lr_schedule!r} is not one of constant | linear | adaptive")
+        self._apply_lr()
+
+    def _apply_lr(self) -> None:
         for group in self.optimizer.param_groups:
             group["lr"] = self.lr
 
@@ -181,7 +184,7 @@ class PPO:
                 self.lr = max(self.lr / 1.5, 1e-6)
             elif kl < 0.5 * cfg.kl_target:
                 self.lr = min(self.lr * 1.5, 1e-2)
-            self.set_progress(0.0)
+            self._apply_lr()
         metrics.update(
             lr=self.lr,
             explained_variance=_explained_variance(flat(values), returns),
