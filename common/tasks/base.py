@@ -27,6 +27,43 @@ class TaskConfig:
     """Physics steps per simulated second; must be a multiple of control_hz."""
     episode_s: float = 2.0
     """Time limit of an episode in simulated seconds (reached -> truncated)."""
+    character: str = ""
+    """Shape tasks: character preset (empty: the task name, e.g. `lower_biped`)."""
+    parameterization: str = "random"
+    """Shape tasks: the character's shape parameterization (`morphmimic character PRESET --list`);
+    "random" is Won & Lee's global b_g x per-segment b_l."""
+    clip_id: str = ""
+    """Shape tasks: reference clip (empty: the character's default, common.tasks.references)."""
+    vary_shape: bool = True
+    """Shape tasks: False pins the shape to the base character (the no-variation ablation); the
+    observation keeps the shape parameters so the policy evaluates on any shape."""
+    reward_normalization: bool = True
+    """Shape tasks: Won & Lee 2019 reward normalization (METHOD.md A, a reconstruction) on/off."""
+    task_params: tuple[str, ...] = ()
+    """Shape tasks: task parameters sampled per episode beside the shape: "speed", "heading"."""
+    speed_range: tuple[float, float] = (0.8, 1.2)
+    """Range of the "speed" task parameter: reference playback factor (target velocity scales)."""
+    heading_range_rad: tuple[float, float] = (-3.14159, 3.14159)
+    """Range of the "heading" task parameter: world yaw of the walking direction, rad."""
+    action_scale: float = 0.5
+    """Shape tasks: rad of PD-target deviation per unit action (target = q_ref + scale * a)."""
+    action_clip: float = 3.0
+    """Shape tasks: actions are clipped to [-action_clip, action_clip] before scaling."""
+    random_start_phase: bool = True
+    """Shape tasks: start each episode at a uniformly random phase of the clip (else at 0)."""
+    shin_contact_is_fall: bool = True
+    """Walkers: False lets the segment above each foot (a quadruped's shank) touch the floor
+    without it counting as a fall; the trunk, head and thighs still end the episode."""
+    max_root_deviation: float = 0.0
+    """Swimmers: terminate (as a fall) when the root is this many body lengths from the
+    reference root; 0 turns it off."""
+    reward_weights: tuple[float, ...] = ()
+    """Shape tasks: w1..w6 (empty: the character's row of METHOD.md A's table)."""
+    reward_sensitivities: tuple[float, ...] = (0.02, 0.5, 0.2, 0.2, 0.05, 0.1)
+    """Shape tasks: s1..s6 (METHOD.md A)."""
+    character_cache: int = 8
+    """Shape tasks: compiled characters + retargeted references kept per environment (LRU):
+    a repeated shape (the MCMC buffer repeats them) skips the 15-100 ms rebuild."""
 
     @property
     def substeps(self) -> int:

@@ -9,6 +9,11 @@ from common.tasks.base import Env, TaskConfig
 
 TASKS: dict[str, str] = {
     "reach": "common.tasks.reach:ReachEnv",
+    "lower_biped": "common.tasks.imitate:ImitateEnv",
+    "biped": "common.tasks.imitate:ImitateEnv",
+    "quadruped": "common.tasks.imitate:ImitateEnv",
+    "fish": "common.tasks.imitate:ImitateEnv",
+    "manta": "common.tasks.imitate:ImitateEnv",
 }
 
 

@@ -1,0 +1,354 @@
+"""`ImitateEnv`: Won & Lee 2019's environment (METHOD.md A) over one character family.
+
+Each episode builds the character `C = F(B, b)` from the shape `b` the sampler drew, retargets
+the task's reference clip onto it (`references.play`) and starts at a random phase of the clip
+in the reference state (no per-episode standing-pose solve: the retargeted reference already
+has the feet on the floor). Every control step (30 Hz, `TaskConfig.control_hz`) the action `a`
+`[nu]` is a deviation from the reference pose: the PD target is `q_ref(t + dt) + action_scale a`
+(rotation vectors on ball joints), tracked by MuJoCo's implicit PD (stable PD, builder.py).
+
+State (METHOD.md A, `s = (s_b, s_d, s_s)`), all in the heading frame of the root (yaw and
+planar position left out): s_b the episode parameters (shape, then task parameters); s_d root
+height, orientation and velocities, joint vector `[nu]`, joint velocities `[nu]`, end effectors
+relative to the root `[3E]`; s_s reference joint vector, root height and orientation at t,
+t + 0.5 s, t + 1.0 s, the target velocity `[2]`, the 2-s average and current COM velocity,
+and the clip phase (sin, cos).
+
+Reward: `rewards.py` (weights and sensitivities from METHOD.md A, reward normalization
+switchable: `TaskConfig.reward_normalization`). Termination: a fall (a floor contact of any
+body but the feet, or for swimmers a root further than `max_root_deviation` body lengths from
+the reference) terminates; the horizon (`episode_s`, 30 s) and simulator divergence truncate.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+
+import mujoco
+import numpy as np
+
+from common.params import ParamSpace
+from common.tasks import references, rewards
+from common.tasks.base import TaskConfig, step_physics
+from common.tasks.observations import JointLayout, heading, quat_to_mat, root_frame_features, yaw_matrix
+
+LOOKAHEAD_S = (0.0, 0.5, 1.0)
+"""Reference postures in the state: now, 0.5 s and 1.0 s ahead (METHOD.md A)."""
+REF_CHUNK_STEPS = 96
+"""Control steps of reference sampled at a time (about 3 s; episodes often end sooner early on)."""
+COM_WINDOW_S = 2.0
+"""v_com in R_task is the COM velocity averaged over the last 2 s (METHOD.md A)."""
+TASK_PARAMS = {
+    "speed": ("speed", "playback speed factor of the reference; target velocity scales with it"),
+    "heading": ("heading", "walking direction (rad, world yaw) the reference is rotated to"),
+}
+
+
+def character_preset(cfg: TaskConfig) -> str:
+    """The character preset of a shape task: `cfg.character`, else the task name."""
+    preset = cfg.character or cfg.name
+    if preset not in references.DEFAULT_CLIPS:
+        raise ValueError(f"task {cfg.name!r}: character {preset!r} has no shape task; choose one of {sorted(references.DEFAULT_CLIPS)}")
+    return preset
+
+
+class ImitateEnv:
+    """Gymnasium-style environment; see `common.tasks.base.Env` and the module docstring."""
+
+    @staticmethod
+    def param_space(cfg: TaskConfig) -> ParamSpace:
+        """Shape parameters of `cfg.parameterization` (collapsed to the base shape when
+        `cfg.vary_shape` is off), then the task parameters of `cfg.task_params`."""
+        shape = references.base_character(character_preset(cfg), 1.0 / cfg.sim_hz).base.spaces.get(cfg.parameterization)
+        if shape is None:
+            spaces = references.base_character(character_preset(cfg), 1.0 / cfg.sim_hz).base.spaces
+            raise ValueError(f"parameterization {cfg.parameterization!r} is not one of {sorted(spaces)}")
+        names, low, high, doc = list(shape.names), list(shape.low), list(shape.high), [p.doc for p in shape.params]
+        if not cfg.vary_shape:
+            low, high = list(shape.default), list(shape.default)
+        ranges = {"speed": cfg.speed_range, "heading": cfg.heading_range_rad}
+        for name in cfg.task_params:
+            if name not in TASK_PARAMS:
+                raise ValueError(f"task parameter {name!r} is not one of {sorted(TASK_PARAMS)}")
+            names.append(name)
+            low.append(float(ranges[name][0]))
+            high.append(float(ranges[name][1]))
+            doc.append(TASK_PARAMS[name][1])
+        default = list(shape.default) + [1.0 if n == "speed" else 0.0 for n in cfg.task_params]
+        default = [min(max(d, lo), hi) for d, lo, hi in zip(default, low, high)]
+        return ParamSpace(tuple(names), tuple(low), tuple(high), tuple(default), tuple(doc))
+
+    @staticmethod
+    def clips(cfg: TaskConfig) -> list[tuple[str, str]]:
+        preset = character_preset(cfg)
+        clip_id = cfg.clip_id or references.DEFAULT_CLIPS[preset]
+        return [(clip_id, "root/locomotion")]
+
+    def __init__(self, cfg: TaskConfig, seed: int = 0):
+        self.cfg = cfg
+        self.preset = character_preset(cfg)
+        self.clip_id = cfg.clip_id or references.DEFAULT_CLIPS[self.preset]
+        self.timestep_s = 1.0 / cfg.sim_hz
+        self.space = self.param_space(cfg)
+        self.n_shape = len(self.space.names) - len(cfg.task_params)
+        self.rng = np.random.default_rng(seed)
+        self.base = references.base_character(self.preset, self.timestep_s)
+        self.weights = tuple(cfg.reward_weights) or rewards.WEIGHTS[self.preset]
+        self.sigmas = tuple(cfg.reward_sensitivities)
+        base_clip, _ = references.task_clip(self.preset, self.clip_id, self.timestep_s)
+        self.v0 = references.cycle_velocity(base_clip)
+        self.tau_scale = self.base.model.actuator_forcerange[:, 1].copy()
+        self._base_legs = self._legs(self.base)
+        self._cache: collections.OrderedDict[bytes, tuple] = collections.OrderedDict()
+        self.dt = 1.0 / cfg.control_hz
+        self._look = [int(round(x * cfg.control_hz)) for x in LOOKAHEAD_S]
+        self._load(self.space.default_array)
+        self.obs_dim = int(self._reset_state(0.0).shape[0])
+        self.act_dim = int(self.model.nu)
+
+    def _legs(self, ch) -> np.ndarray:
+        """Leg lengths [n] m for the normalization; a swimmer's body length stands in."""
+        return ch.leg_lengths_m if len(ch.base.legs) else np.array([ch.length_m])
+
+    def _load(self, params: np.ndarray) -> None:
+        """Build (or fetch from the per-env cache) the character and reference for a shape."""
+        shape = np.asarray(params[: self.n_shape], dtype=np.float64)
+        key = shape.tobytes()
+        if key in self._cache:
+            self._cache.move_to_end(key)
+        else:
+            from common.characters import load_character
+
+            ch = load_character(self.preset, shape, self.cfg.parameterization, timestep_s=self.timestep_s)
+            motion = references.play(ch, self.clip_id, self.timestep_s)
+            norm = rewards.Normalization.from_legs(self._legs(ch), self._base_legs, ch.mass_kg, self.base.mass_kg)
+            self._cache[key] = (ch, motion, norm)
+            while len(self._cache) > max(1, self.cfg.character_cache):
+                self._cache.popitem(last=False)
+        self._set_character(*self._cache[key])
+
+    def _set_character(self, ch, motion, norm) -> None:
+        self.character, self.motion, self.norm = ch, motion, norm
+        self.model = ch.model
+        self.layout = JointLayout(self.model)
+        self.root_body = self.model.body(ch.root_body).id
+        self.ee_ids = np.array([self.model.body(b).id for b in ch.end_effector_bodies], dtype=np.int64)
+        foot = {int(self.model.geom(g).bodyid[0]) for g in ch.foot_geoms}
+        if not self.cfg.shin_contact_is_fall:
+            foot |= {int(self.model.body_parentid[b]) for b in foot}
+        allowed = [b for b in range(self.model.nbody) if any(self._descends(b, f) for f in foot)]
+        self.allowed_contact = np.zeros(self.model.nbody, bool)
+        self.allowed_contact[allowed] = True
+        self.allowed_contact[0] = True
+        self.length_m = float(ch.length_m) if ch.is_swimmer else 0.0
+
+    def _descends(self, b: int, ancestor: int) -> bool:
+        while b > 0:
+            if b == ancestor:
+                return True
+            b = int(self.model.body_parentid[b])
+        return False
+
+    # ---- the reference, rotated to the episode's heading and played at its speed ----
+
+    def _ref_qpos(self, t_s: np.ndarray) -> np.ndarray:
+        """Reference qpos `[N, nq]` at episode times t_s (s), heading and speed applied."""
+        q = self.motion.qpos(self.tau0 + self.speed * np.asarray(t_s, dtype=np.float64))
+        q = np.atleast_2d(q).copy()
+        q[:, 0:3] = q[:, 0:3] @ self.rot.T + self.ref_offset
+        for row in q:
+            out = np.zeros(4)
+            mujoco.mju_mulQuat(out, self.rot_quat, row[3:7])
+            row[3:7] = out
+        return q
+
+    def _grid(self, k: int) -> int:
+        """Row of control step k in the reference table, extending the table as needed.
+
+        NOTE: the reference is sampled once per control step on the grid t = k dt (vectorized,
+        in chunks) rather than per call: clip slerps in Python cost more than the physics.
+        """
+        row = k + 1  # row 0 is step -1, for the centred velocity at step 0
+        need = row + self._look[-1] + 2
+        if need > len(self._tab_q):
+            start = len(self._tab_q)
+            stop = max(need, start + REF_CHUNK_STEPS)
+            q = self._ref_qpos((np.arange(start, stop) - 1) * self.dt)
+            self._tab_q = np.concatenate([self._tab_q, q]) if start else q
+            j = self.layout.to_vector(q)
+            self._tab_j = np.concatenate([self._tab_j, j]) if start else j
+        return row
+
+    def _clear_table(self) -> None:
+        self._tab_q = np.zeros((0, self.model.nq))
+        self._tab_j = np.zeros((0, self.model.nu))
+
+    def _ref_qvel(self, k: int) -> np.ndarray:
+        """Reference qvel `[nv]` at step k: centred difference of the table over 2 dt."""
+        row = self._grid(k)
+        v = np.zeros(self.model.nv)
+        mujoco.mj_differentiatePos(self.model, v, 2.0 * self.dt, self._tab_q[row - 1], self._tab_q[row + 1])
+        return v
+
+    def _ref_ee(self, qpos: np.ndarray) -> np.ndarray:
+        """Reference end effectors `[E, 3]` relative to the reference root, in its heading frame."""
+        body_pos, _ = self.motion.positions(qpos)
+        frame = yaw_matrix(heading(quat_to_mat(qpos[3:7])))
+        return (body_pos[self.ee_ids] - qpos[0:3]) @ frame
+
+    # ---- the Env contract ----
+
+    def reset(self, seed: int | None, params: np.ndarray, clip_id: str | None = None) -> tuple[np.ndarray, dict]:
+        if seed is not None:
+            self.rng = np.random.default_rng(seed)
+        if clip_id not in (None, "", self.clip_id):
+            raise ValueError(f"clip {clip_id!r} is not this task's clip {self.clip_id!r}")
+        params = self.space.validate(params)
+        self._load(params)
+        phase = float(self.rng.uniform(0.0, self.motion.duration_s)) if self.cfg.random_start_phase else 0.0
+        return self._reset_state(phase, params), {}
+
+    def _reset_state(self, phase_s: float, params: np.ndarray | None = None) -> np.ndarray:
+        params = self.space.default_array if params is None else params
+        self.params = params.astype(np.float64)
+        task = dict(zip(self.cfg.task_params, params[self.n_shape :]))
+        self.speed = float(task.get("speed", 1.0))
+        yaw = float(task.get("heading", 0.0))
+        self.rot = yaw_matrix(yaw)
+        self.rot_quat = np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
+        self.ref_offset = np.zeros(3)
+        self.tau0 = phase_s
+        self.k = 0
+        self.data = mujoco.MjData(self.model)
+        self._clear_table()
+        row = self._grid(0)
+        self.data.qpos[:] = self._tab_q[row]
+        self.data.qvel[:] = self._ref_qvel(0)
+        if not self.character.is_swimmer:
+            from common.characters.morph import lift_out_of_floor
+
+            lift_out_of_floor(self.model, self.data)
+        mujoco.mj_forward(self.model, self.data)
+        self.com_hist: collections.deque = collections.deque(maxlen=int(round(COM_WINDOW_S * self.cfg.control_hz)) + 1)
+        self.com_hist.append(self.data.subtree_com[self.root_body].copy())
+        self._refresh_reference()
+        return self._obs()
+
+    def _refresh_reference(self) -> None:
+        row = self._grid(self.k)
+        rows = [row, row + 1, *(row + n for n in self._look[1:])]
+        self.ref_q = self._tab_q[rows]
+        self.ref_joints = self._tab_j[rows]
+
+    def target_velocity(self) -> np.ndarray:
+        """v_target `[2]` m/s in the world: the clip's cycle velocity, scaled by speed, by the
+        leg-length rule with normalization on (rewards.Normalization.target_speed)."""
+        v = self.rot[:2, :2] @ self.v0 * self.speed
+        return v * (self.norm.leg_ratio * self.norm.asym if self.cfg.reward_normalization else 1.0)
+
+    def _com_velocity_avg(self) -> np.ndarray:
+        n = len(self.com_hist) - 1
+        if n == 0:
+            return self.data.subtree_linvel[self.root_body][:2].copy()
+        return (self.com_hist[-1][:2] - self.com_hist[0][:2]) / (n * self.dt)
+
+    def _obs(self) -> np.ndarray:
+        d = self.data
+        frame = yaw_matrix(heading(quat_to_mat(d.qpos[3:7])))
+        root = d.qpos[0:3]
+        ee = (d.xpos[self.ee_ids] - root) @ frame
+        refs = []
+        for row, qref in zip((0, 2, 3), (self.ref_q[0], self.ref_q[2], self.ref_q[3])):
+            rot = frame.T @ quat_to_mat(qref[3:7])
+            refs.append(np.concatenate([self.ref_joints[row], [qref[2]], rot[:, 0], rot[:, 1]]))
+        v_target = frame[:2, :2].T @ self.target_velocity()
+        v_avg = frame[:2, :2].T @ self._com_velocity_avg()
+        com_vel = frame.T @ d.subtree_linvel[self.root_body]
+        phase = 2.0 * math.pi * ((self.tau0 + self.speed * self.k * self.dt) / self.motion.duration_s)
+        return np.concatenate([
+            self.params, root_frame_features(d.qpos, d.qvel, frame), self.layout.to_vector(d.qpos), d.qvel[6:],
+            ee.reshape(-1), *refs, v_target, v_avg, com_vel, [math.sin(phase), math.cos(phase)],
+        ]).astype(np.float32)
+
+    def reward_terms(self) -> dict[str, float]:
+        """The six weighted terms at the current state against the reference at the same time."""
+        d, qref = self.data, self.ref_q[0]
+        balls = np.concatenate([[d.qpos[3:7]], d.qpos[self.layout.ball_qpos]])
+        balls_ref = np.concatenate([[qref[3:7]], qref[self.layout.ball_qpos]])
+        frame = yaw_matrix(heading(quat_to_mat(d.qpos[3:7])))
+        ee = (d.xpos[self.ee_ids] - d.qpos[0:3]) @ frame
+        norm = self.norm if self.cfg.reward_normalization else None
+        facing = frame[:2, 0]
+        facing_ref = yaw_matrix(heading(quat_to_mat(qref[3:7])))[:2, 0]
+        errors = {
+            "pose": rewards.pose_error(balls, balls_ref, d.qpos[self.layout.hinge_qpos], qref[self.layout.hinge_qpos]),
+            "velocity": rewards.mean_sq(d.qvel[6:] - self._ref_qvel(self.k)[6:]),
+            "end_effector": rewards.end_effector_error(ee, self._ref_ee(qref)),
+            "com_velocity": rewards.mean_sq(self._com_velocity_avg() - self.target_velocity()),
+            "direction": rewards.direction_error(facing, facing_ref, norm),
+            "torque": rewards.torque_error(d.actuator_force, self.tau_scale, norm),
+        }
+        return rewards.reward_terms(self.weights, self.sigmas, errors)
+
+    def fell(self) -> bool:
+        """A floor contact of a body other than the feet (and shins, see
+        `TaskConfig.shin_contact_is_fall`) for walkers, or a swimmer's root further
+        than `max_root_deviation` body lengths from the reference root."""
+        d = self.data
+        if self.character.is_swimmer:
+            if self.cfg.max_root_deviation <= 0:
+                return False
+            return float(np.linalg.norm(d.qpos[0:3] - self.ref_q[0][0:3])) > self.cfg.max_root_deviation * self.length_m
+        for i in range(d.ncon):
+            c = d.contact[i]
+            b1, b2 = self.model.geom_bodyid[c.geom1], self.model.geom_bodyid[c.geom2]
+            if not (self.allowed_contact[b1] and self.allowed_contact[b2]):
+                return True
+        return False
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        a = np.clip(np.nan_to_num(np.asarray(action, dtype=np.float64)), -self.cfg.action_clip, self.cfg.action_clip)
+        self.data.ctrl[:] = self.ref_joints[1] + self.cfg.action_scale * a
+        diverged = step_physics(self.model, self.data, self.cfg.substeps)
+        self.k += 1
+        if diverged:
+            return self._obs_safe(), 0.0, False, True, {"diverged": True}
+        self.com_hist.append(self.data.subtree_com[self.root_body].copy())
+        self._refresh_reference()
+        terms = self.reward_terms()
+        r_imit, r_task, r_reg = rewards.split(terms)
+        fell = self.fell()
+        obs = self._obs()
+        truncated = self.k >= self.cfg.episode_steps and not fell
+        info = {"diverged": False, "fell": fell, "task_reward": r_task, "imitation_reward": r_imit, "reg_reward": r_reg}
+        return obs, r_imit + r_task + r_reg, fell, truncated, info
+
+    def _obs_safe(self) -> np.ndarray:
+        try:
+            obs = self._obs()
+        except Exception:  # NOTE: a diverged state may hold NaN/inf that numpy chokes on
+            return np.zeros(self.obs_dim, np.float32)
+        return np.nan_to_num(obs, nan=0.0, posinf=0.0, neginf=0.0)
+
+    # ---- shape change during the episode (Won & Lee 2019 section 3, METHOD.md A) ----
+
+    def set_shape(self, shape: np.ndarray) -> None:
+        """Morph the body to `shape` `[P]` now, keeping the state (common.characters.morph) and
+        the clip time; the reference is retargeted to the new body and shifted so its root
+        stays where it was. The episode's parameter vector (in the observation) follows."""
+        from common.characters import morph
+
+        shape = np.asarray(shape, dtype=np.float64)
+        old_root = self.ref_q[0][0:3].copy()
+        self._cache.clear()  # NOTE: morph re-shapes the spec in place: cached characters share it
+        ch, self.data = morph(self.character, shape, self.data)
+        motion = references.play(ch, self.clip_id, self.timestep_s)
+        norm = rewards.Normalization.from_legs(self._legs(ch), self._base_legs, ch.mass_kg, self.base.mass_kg)
+        self._set_character(ch, motion, norm)
+        new_root = self._ref_qpos(self.k * self.dt)[0][0:3]
+        self.ref_offset = self.ref_offset + old_root - new_root
+        self.ref_offset[2] = 0.0
+        self._clear_table()
+        self.params = np.concatenate([shape, self.params[self.n_shape :]])
+        self._refresh_reference()

@@ -1,0 +1,180 @@
+"""Evaluation building blocks: load a checkpoint into a policy, draw the evaluation shapes, run
+deterministic episodes (Won & Lee 2019 protocol: random shapes from a fixed seed, 30 s
+episodes; task achievement = cumulative task reward R_task, fall-down = episodes that end in a
+fall). No plotting and no CLI here (evaluate.py, morph_demo.py, ablation.py use it).
+"""
+
+from __future__ import annotations
+
+import os
+
+# NOTE: before anything imports mujoco: it picks its GL backend once; EGL renders headless here.
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import dataclasses
+import multiprocessing
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import torch
+
+from common.policy import GaussianPolicy
+from common.tasks.base import TaskConfig
+from common.tasks.registry import make_env
+from learner import checkpoint
+from learner.config import RunConfig
+
+
+@dataclass(frozen=True)
+class Loaded:
+    """A checkpoint ready to run: its resolved run config, the raw state and where it came from."""
+
+    cfg: RunConfig
+    state: dict[str, Any]
+    path: Path
+
+    @property
+    def name(self) -> str:
+        return self.cfg.name
+
+
+def resolve(path: str | Path) -> Path:
+    """A checkpoint directory (with state.pt), a state.pt file, a run directory (its newest
+    `ckpt/<it>/`) or a shipped `learner/pretrained/<name>` -> the state.pt file."""
+    p = Path(path)
+    if p.is_file():
+        return p
+    if (p / checkpoint.FILE).is_file():
+        return p / checkpoint.FILE
+    found = checkpoint.list_checkpoints(p / "ckpt")
+    if found:
+        return found[-1] / checkpoint.FILE
+    raise SystemExit(f"--checkpoint {path}: no state.pt there, nor a run directory with ckpt/<iteration>/state.pt")
+
+
+def load(path: str | Path) -> Loaded:
+    file = resolve(path)
+    try:
+        state = checkpoint.load(file)
+    except checkpoint.CheckpointError as exc:
+        raise SystemExit(str(exc)) from None
+    if "config" not in state or "policy" not in state:
+        raise SystemExit(f"{file} holds no 'config'/'policy': not a morphmimic training checkpoint")
+    return Loaded(RunConfig.from_json(state["config"]), state, file)
+
+
+def eval_task(cfg: TaskConfig, episode_s: float) -> TaskConfig:
+    """The task as evaluated: every shape of the parameterization (even for a checkpoint trained
+    on one shape), a fixed start at phase 0, the given horizon."""
+    extra = {}
+    if "vary_shape" in {f.name for f in dataclasses.fields(cfg)}:
+        extra = {"vary_shape": True, "random_start_phase": False}
+    return dataclasses.replace(cfg, episode_s=episode_s, **extra)
+
+
+def make_policy(loaded: Loaded, obs_dim: int, act_dim: int) -> GaussianPolicy:
+    policy = GaussianPolicy(obs_dim, act_dim, loaded.cfg.policy)
+    try:
+        policy.load_state_dict(loaded.state["policy"])
+    except RuntimeError as exc:
+        raise SystemExit(f"{loaded.path}: the policy does not fit task {loaded.cfg.task.name!r} as this code builds it "
+                         f"(obs {obs_dim}, act {act_dim}): {exc}") from None
+    policy.eval()
+    return policy
+
+
+def eval_shapes(space, n: int, seed: int) -> np.ndarray:
+    """`[n, dim]` uniform draws over the task's full parameter box from a fixed seed."""
+    return space.uniform(np.random.default_rng(seed), n)
+
+
+def extremeness(space, params: np.ndarray, n_shape: int | None = None) -> np.ndarray:
+    """`[n]` L2 norm of the shape parameters mapped to [-1, 1] over the box: 0 = the centre."""
+    params = np.atleast_2d(params)
+    k = n_shape or params.shape[1]
+    lo, hi = space.low_array[:k], space.high_array[:k]
+    span = np.where(hi > lo, hi - lo, 1.0)
+    return np.linalg.norm(np.where(hi > lo, 2 * (params[:, :k] - lo) / span - 1, 0.0), axis=1)
+
+
+def run_episode(env, policy: GaussianPolicy, params: np.ndarray, seed: int,
+                on_step: Callable[[Any, int], None] | None = None) -> dict[str, Any]:
+    """One deterministic (mean action) episode; `on_step(env, k)` is called after each step."""
+    obs, _ = env.reset(seed, params)
+    ret = task = imit = 0.0
+    fell = diverged = False
+    k = 0
+    while True:
+        action, _ = policy.act(obs[None], deterministic=True)
+        obs, r, term, trunc, info = env.step(action[0])
+        k += 1
+        ret += r
+        task += float(info.get("task_reward", 0.0))
+        imit += float(info.get("imitation_reward", 0.0))
+        if on_step is not None:
+            on_step(env, k)
+        if term or trunc:
+            fell = bool(term and info.get("fell", True))
+            diverged = bool(info.get("diverged"))
+            break
+    return {"return": ret, "task_reward": task, "imitation_reward": imit, "steps": k, "fell": fell,
+            "diverged": diverged, "seconds": k / env.cfg.control_hz}
+
+
+_WORKER: dict[str, Any] = {}
+
+
+def _init_worker(state_file: str, task_json: dict, episode_s: float) -> None:
+    torch.set_num_threads(1)
+    loaded = load(state_file)
+    task = eval_task(dataclasses.replace(loaded.cfg.task, **task_json), episode_s)
+    env = make_env(task, seed=0)
+    _WORKER.update(env=env, policy=make_policy(loaded, env.obs_dim, env.act_dim))
+
+
+def _work(job: tuple[int, np.ndarray, int]) -> dict[str, Any]:
+    i, params, seed = job
+    out = run_episode(_WORKER["env"], _WORKER["policy"], params, seed)
+    return {"index": i, "params": [float(x) for x in params], **out}
+
+
+def evaluate(loaded: Loaded, shapes: np.ndarray, episode_s: float, seed: int, workers: int = 1,
+             progress: Callable[[int, int], None] | None = None, task_overrides: dict | None = None) -> list[dict]:
+    """Run one episode per row of `shapes`; results in row order. `workers` > 1 uses processes."""
+    jobs = [(i, shapes[i], seed + i) for i in range(len(shapes))]
+    init = (str(loaded.path), dict(task_overrides or {}), episode_s)
+    results: list[dict] = []
+    if workers <= 1:
+        _init_worker(*init)
+        for job in jobs:
+            results.append(_work(job))
+            if progress:
+                progress(len(results), len(jobs))
+    else:
+        ctx = multiprocessing.get_context("fork")
+        with ctx.Pool(workers, initializer=_init_worker, initargs=init) as pool:
+            for res in pool.imap_unordered(_work, jobs):
+                results.append(res)
+                if progress:
+                    progress(len(results), len(jobs))
+    return sorted(results, key=lambda r: r["index"])
+
+
+def summarize(results: list[dict], space, n_shape: int) -> dict[str, Any]:
+    """Task achievement (mean cumulative task reward), fall-down %, mean return and the
+    fall-down % on the most extreme 10% of shapes (by `extremeness`)."""
+    params = np.array([r["params"] for r in results])
+    fell = np.array([r["fell"] for r in results], dtype=bool)
+    ext = extremeness(space, params, n_shape)
+    top = np.argsort(ext)[-max(1, len(results) // 10):]
+    return {
+        "shapes": len(results),
+        "task_achievement": float(np.mean([r["task_reward"] for r in results])),
+        "fall_down_pct": float(100.0 * fell.mean()),
+        "mean_return": float(np.mean([r["return"] for r in results])),
+        "mean_seconds": float(np.mean([r["seconds"] for r in results])),
+        "diverged": int(sum(r["diverged"] for r in results)),
+        "fall_down_pct_extreme10": float(100.0 * fell[top].mean()),
+    }

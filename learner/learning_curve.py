@@ -1,0 +1,98 @@
+"""The learning curve of a run (issue 6 item 7): fall-down % and task achievement of every
+checkpoint on the same random shapes, against environment steps and wall time.
+
+    python -m learner.learning_curve --ckpt-dir runs/history/lower_biped/ckpt --shapes 100 --episode-s 10
+
+Wall time of a checkpoint = its file's modification time minus `--start` (default: the
+modification time of the run's `config.json`, written when training starts; pass the run
+directory with `--run-dir`). Writes `curve.json` and `curve.png` into `--out` and prints a
+table with the first checkpoint below `--target` fall-down %.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import numpy as np  # noqa: E402
+
+from learner import checkpoint, eval_core  # noqa: E402
+
+
+def main(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(prog="python -m learner.learning_curve", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--ckpt-dir", required=True, help="directory of <iteration>/state.pt checkpoints")
+    p.add_argument("--run-dir", default="", help="the run directory (its config.json time is the start)")
+    p.add_argument("--start", type=float, default=0.0, help="training start, Unix time (overrides --run-dir)")
+    p.add_argument("--shapes", type=int, default=100)
+    p.add_argument("--episode-s", type=float, default=10.0)
+    p.add_argument("--seed", type=int, default=2019)
+    p.add_argument("--every", type=int, default=1, help="evaluate every n-th checkpoint (the last always)")
+    p.add_argument("--workers", type=int, default=1)
+    p.add_argument("--target", type=float, default=20.0, help="fall-down %% to report reaching")
+    p.add_argument("--out", default="", help="output directory (default: <ckpt-dir>/../curve)")
+    args = p.parse_args(argv)
+    ckpts = checkpoint.list_checkpoints(Path(args.ckpt_dir))
+    if not ckpts:
+        raise SystemExit(f"--ckpt-dir {args.ckpt_dir}: no checkpoints")
+    ckpts = [c for i, c in enumerate(ckpts) if i % args.every == 0 or c == ckpts[-1]]
+    start = args.start or (os.path.getmtime(Path(args.run_dir) / "config.json") if args.run_dir else 0.0)
+    out = Path(args.out) if args.out else Path(args.ckpt_dir).parent / "curve"
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for c in ckpts:
+        loaded = eval_core.load(c)
+        from common.tasks.registry import make_env
+
+        env = make_env(eval_core.eval_task(loaded.cfg.task, args.episode_s), seed=0)
+        shapes = eval_core.eval_shapes(env.space, args.shapes, args.seed)
+        res = eval_core.evaluate(loaded, shapes, args.episode_s, args.seed, args.workers)
+        s = eval_core.summarize(res, env.space, getattr(env, "n_shape", env.space.dim))
+        wall = os.path.getmtime(c / checkpoint.FILE) - start if start else float("nan")
+        rows.append({"iteration": int(loaded.state["iteration"]), "env_steps": int(loaded.state["env_steps"]),
+                     "wall_s": wall, **s})
+        print(f"[curve] it {rows[-1]['iteration']:5d} steps {rows[-1]['env_steps']:>10,d} wall {wall / 60:6.1f} min | "
+              f"fall-down {s['fall_down_pct']:5.1f}% task {s['task_achievement']:6.1f} length {s['mean_seconds']:5.2f} s",
+              flush=True)
+    (out / "curve.json").write_text(json.dumps({"shapes": args.shapes, "episode_s": args.episode_s, "seed": args.seed,
+                                                "rows": rows}, indent=1) + "\n")
+    _plot(rows, out / "curve.png", args)
+    hit = next((r for r in rows if r["fall_down_pct"] <= args.target), None)
+    if hit:
+        print(f"[curve] reached {args.target:g}% fall-down at {hit['env_steps']:,d} env steps, {hit['wall_s'] / 60:.1f} min")
+    else:
+        best = min(rows, key=lambda r: r["fall_down_pct"])
+        print(f"[curve] never reached {args.target:g}%: best {best['fall_down_pct']:.1f}% at {best['env_steps']:,d} steps")
+    return 0
+
+
+def _plot(rows: list[dict], path: Path, args) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    steps = np.array([r["env_steps"] for r in rows]) / 1e6
+    fig, ax = plt.subplots(figsize=(6, 4), dpi=120)
+    ax.plot(steps, [r["fall_down_pct"] for r in rows], "o-", label="fall-down %")
+    ax.plot(steps, [r["fall_down_pct_extreme10"] for r in rows], "s--", label="fall-down % (extreme 10%)")
+    ax.axhline(args.target, color="gray", lw=0.8, ls=":")
+    ax.set_xlabel("environment steps (M)")
+    ax.set_ylabel("%")
+    ax.set_ylim(0, 100)
+    ax.set_title(f"{args.shapes} random shapes, {args.episode_s:g} s episodes", fontsize=9)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    import sys
+
+    raise SystemExit(main(sys.argv[1:]))

@@ -1,0 +1,102 @@
+"""The shape tasks' environment: reward normalization, termination, the reference state start
+and shape change during an episode."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import mujoco
+import numpy as np
+import pytest
+
+from common.tasks.base import TaskConfig
+from common.tasks.registry import make_env
+
+CFG = TaskConfig(name="lower_biped", control_hz=30.0, sim_hz=480.0, episode_s=30.0)
+
+
+def _shape(env, **values) -> np.ndarray:
+    return env.space.validate(values)
+
+
+def test_episode_starts_on_the_reference() -> None:
+    env = make_env(CFG, seed=0)
+    env.reset(0, env.space.default_array)
+    np.testing.assert_allclose(env.data.qpos[7:], env.ref_q[0][7:], atol=1e-9)
+    terms = env.reward_terms()
+    assert terms["pose"] == pytest.approx(env.weights[0], rel=1e-6)
+    assert terms["end_effector"] == pytest.approx(env.weights[2], rel=1e-6)
+
+
+@pytest.mark.parametrize("normalize", [True, False])
+def test_target_velocity_follows_leg_length_only_with_normalization(normalize: bool) -> None:
+    env = make_env(dataclasses.replace(CFG, reward_normalization=normalize), seed=0)
+    env.reset(0, _shape(env, global_z=0.6))
+    short, norm = np.linalg.norm(env.target_velocity()), env.norm
+    assert norm.leg_ratio < 0.8
+    env.reset(0, env.space.default_array)
+    base = np.linalg.norm(env.target_velocity())
+    assert base == pytest.approx(np.linalg.norm(env.v0))
+    if normalize:
+        assert short == pytest.approx(base * norm.leg_ratio * norm.asym)
+    else:
+        assert short == pytest.approx(base)
+
+
+def test_lying_on_the_floor_is_a_fall() -> None:
+    env = make_env(CFG, seed=0)
+    env.reset(0, env.space.default_array)
+    env.data.qpos[2] = 0.1
+    env.data.qpos[3:7] = [np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0, 0.0]  # pitched onto its side
+    mujoco.mj_forward(env.model, env.data)
+    _, _, terminated, truncated, info = env.step(np.zeros(env.act_dim))
+    assert terminated and not truncated and info["fell"]
+
+
+def test_horizon_truncates_without_terminating() -> None:
+    cfg = TaskConfig(name="quadruped", control_hz=30.0, sim_hz=480.0, episode_s=0.2)
+    env = make_env(cfg, seed=0)
+    env.reset(0, env.space.default_array)
+    ends = [env.step(np.zeros(env.act_dim))[2:4] for _ in range(cfg.episode_steps)]
+    assert ends[-1] == (False, True)
+    assert all(e == (False, False) for e in ends[:-1])
+
+
+def test_swimmer_far_from_its_reference_terminates() -> None:
+    env = make_env(TaskConfig(name="fish", control_hz=30.0, sim_hz=480.0, max_root_deviation=1.0), seed=0)
+    env.reset(0, env.space.default_array)
+    env.data.qpos[0] += 3.0 * env.length_m
+    mujoco.mj_forward(env.model, env.data)
+    assert env.step(np.zeros(env.act_dim))[2]
+
+
+def test_fixed_shape_space_is_the_base_shape() -> None:
+    env = make_env(dataclasses.replace(CFG, vary_shape=False), seed=0)
+    np.testing.assert_array_equal(env.space.low_array, env.space.high_array)
+    assert env.obs_dim == make_env(CFG, seed=0).obs_dim
+
+
+def test_task_parameters_rotate_and_speed_up_the_reference() -> None:
+    cfg = dataclasses.replace(CFG, task_params=("speed", "heading"))
+    env = make_env(cfg, seed=0)
+    assert env.space.names[-2:] == ("speed", "heading")
+    params = env.space.default_array.copy()
+    params[-2:] = [1.2, np.pi / 2]
+    env.reset(0, params)
+    v = env.target_velocity()
+    assert abs(v[0]) < 0.1 * abs(v[1]) and np.linalg.norm(v) == pytest.approx(1.2 * np.linalg.norm(env.v0))
+
+
+def test_set_shape_keeps_the_state_and_updates_the_observation() -> None:
+    env = make_env(CFG, seed=0)
+    env.reset(0, env.space.default_array)
+    for _ in range(3):
+        env.step(np.zeros(env.act_dim))
+    qvel, k = env.data.qvel.copy(), env.k
+    new = _shape(env, global_z=1.2)
+    env.set_shape(new)
+    np.testing.assert_allclose(env.data.qvel, qvel)
+    assert env.k == k
+    obs, *_ = env.step(np.zeros(env.act_dim))
+    np.testing.assert_allclose(obs[: env.space.dim], new, rtol=1e-6)
+    assert env.character.height_m > 1.1 * make_env(CFG, seed=0).character.height_m
