@@ -54,8 +54,9 @@ def render_episode(loaded: eval_core.Loaded, params: np.ndarray, seed: int, epis
 
     env = make_env(eval_core.eval_task(loaded.cfg.task, episode_s), seed=0)
     policy = eval_core.make_policy(loaded, env.obs_dim, env.act_dim)
-    rec = eval_plots.Recorder(every=3 if gif else max(1, int(env.cfg.control_hz * episode_s / 16)))
+    rec = eval_plots.Recorder(every=3 if gif else 6)
     eval_core.run_episode(env, policy, params, seed, on_step=rec)
+    rec(env, 0)  # the final state too: a shape that falls at once still gets a picture
     rec.close()
     written = [rec.write_strip(out / f"{stem}.png")]
     if gif:
