@@ -25,7 +25,6 @@ from pathlib import Path
 import numpy as np
 import zmq
 
-from actors.config import ActorConfig
 from learner.presets import PRESETS
 
 

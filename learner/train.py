@@ -43,7 +43,10 @@ def prepare_run_dir(cfg: RunConfig) -> tuple[Path, tuple[Path, dict] | None]:
             )
     else:
         path = Path(cfg.resume)
-        resume_from = (path, checkpoint.load(path))
+        try:
+            resume_from = (path, checkpoint.load(path))
+        except checkpoint.CheckpointError as exc:
+            raise SystemExit(f"--resume {cfg.resume}: {exc}. Give a checkpoint directory, or auto, or never.") from None
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.json").write_text(cfg.to_json() + "\n")
     return run_dir, resume_from

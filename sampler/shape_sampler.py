@@ -89,17 +89,7 @@ class ShapeSampler:
         if not np.isfinite(values).all():
             row = int(np.flatnonzero(~np.isfinite(values))[0])
             raise ParamError(f"values[{row}] = {values[row]}; values must be finite returns")
-        low, high = self.space.low_array, self.space.high_array
-        # NOTE: draws travel as float32 and come back in reports; float32(1.1) > 1.1, so a draw at
-        # the bound would fail an exact check. Allow float32 rounding, then clip into the box.
-        tol = 1e-6 * np.maximum(1.0, np.maximum(np.abs(low), np.abs(high)))
-        inside = (params >= low - tol) & (params <= high + tol)
-        if not inside.all():
-            bad = int(np.flatnonzero(~inside.all(axis=1))[0])
-            col = int(np.flatnonzero(~inside[bad])[0])
-            raise ParamError(f"row {bad}: parameter {self.space.names[col]!r} = {params[bad, col]:g} is out of "
-                             f"range; allowed: {self.space.describe(col)}")
-        params = np.clip(params, low, high)
+        params = self.space.validate_batch(params)  # float32 rounding at a bound is accepted and clipped
         self._pending_params.append(params.copy())
         self._pending_values.append(values.copy())
         self._trim_pending()

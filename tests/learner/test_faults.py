@@ -51,7 +51,7 @@ def _assert_every_unroll_accounted(run: Run) -> None:
         last = t.last_seq.get(actor_id, -1)
         in_flight_at_end = total - 1 - last
         assert in_flight_at_end >= 0
-        assert t.received[actor_id] + 0 <= total
+        assert t.received[actor_id] <= total
     received = sum(t.received.values())
     in_flight = sum(total - 1 - t.last_seq.get(a, -1) for a, total in sent.items())
     assert sum(sent.values()) == received + t.counters["seq_gap_unrolls"] + in_flight

@@ -13,9 +13,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
 
-from actors.config import ActorConfig
 from common.policy import GaussianPolicy
 from common.tasks.registry import make_env
 from learner import checkpoint
@@ -163,3 +161,6 @@ def test_bad_config_gets_a_clear_error(tmp_path):
     proc = _cli("--preset", "nope")
     out, _ = proc.communicate(timeout=60)
     assert proc.returncode != 0 and "reach-tiny" in out
+    proc = _cli("--preset", "reach-tiny", "--runs-dir", str(tmp_path), "--resume", str(tmp_path / "missing"))
+    out, _ = proc.communicate(timeout=60)
+    assert proc.returncode != 0 and "cannot be read" in out and "Traceback" not in out

@@ -1,8 +1,6 @@
 """The Vm map PNG (Won & Lee 2019, Fig. 6) from a sampler state."""
 
-import dataclasses
 
-import numpy as np
 import pytest
 
 from common.params import ParamSpace
