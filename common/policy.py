@@ -21,6 +21,13 @@ class PolicyConfig:
     """relu | tanh | elu."""
     init_log_std: float = -0.5
     """Initial log standard deviation of every action component."""
+    learn_log_std: bool = True
+    """Learn the log-std by gradient; off, it moves only by the variance schedule below."""
+    final_log_std: float | None = None
+    """UniCon 2020's policy variance controller: anneal the mean log-std linearly from
+    `init_log_std` to this over the first `log_std_anneal_steps` environment steps (None: off)."""
+    log_std_anneal_steps: int = 0
+    """Environment steps of the variance anneal."""
     obs_clip: float = 10.0
     """Normalized observations are clipped to [-obs_clip, obs_clip]."""
 
@@ -85,7 +92,7 @@ class GaussianPolicy(nn.Module):
         self.obs_dim, self.act_dim = obs_dim, act_dim
         self.normalizer = ObsNormalizer(obs_dim, cfg.obs_clip)
         self.mean_net = mlp([obs_dim, *cfg.hidden, act_dim], cfg.activation, out_gain=0.01)
-        self.log_std = nn.Parameter(torch.full((act_dim,), float(cfg.init_log_std)))
+        self.log_std = nn.Parameter(torch.full((act_dim,), float(cfg.init_log_std)), requires_grad=cfg.learn_log_std)
 
     def distribution(self, obs_raw: torch.Tensor) -> torch.distributions.Normal:
         mean = self.mean_net(self.normalizer(obs_raw))
@@ -97,6 +104,19 @@ class GaussianPolicy(nn.Module):
         dist = self.distribution(torch.as_tensor(obs_raw, dtype=torch.float32))
         action = dist.mean if deterministic else dist.sample()
         return action.numpy(), dist.log_prob(action).sum(-1).numpy()
+
+
+@torch.no_grad()
+def anneal_log_std(policy: GaussianPolicy, cfg: PolicyConfig, env_steps: int) -> None:
+    """Policy variance controller (UniCon 2020, METHOD.md B "Training"): set the mean of
+    log sigma to the linear interpolation from `cfg.init_log_std` to `cfg.final_log_std` at
+    `env_steps / cfg.log_std_anneal_steps` (held at the final value afterwards), shifting all
+    components by the same amount so a learned per-component spread is kept."""
+    if cfg.final_log_std is None:
+        return
+    frac = 1.0 if cfg.log_std_anneal_steps <= 0 else min(1.0, env_steps / cfg.log_std_anneal_steps)
+    target = cfg.init_log_std + frac * (cfg.final_log_std - cfg.init_log_std)
+    policy.log_std.add_(target - policy.log_std.mean())
 
 
 class ValueNet(nn.Module):

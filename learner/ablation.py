@@ -55,12 +55,13 @@ def evaluate_one(ckpt: str, out: Path, args: argparse.Namespace) -> dict:
 
 def table(rows: list[dict]) -> str:
     head = ("| run | training | env steps | task achievement | fall-down % | fall-down % (extreme 10%) "
-            "| return map min/mean | mean return |")
-    lines = [head, "|---|---|---|---|---|---|---|---|"]
+            "| mean time up (s) | return map min/mean | mean return |")
+    lines = [head, "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         s, m = r["summary"], r["meta"]
         lines.append(f"| `{m['name']}` | {describe(r['loaded'].cfg)} | {m['env_steps']:,d} | {s['task_achievement']:.1f} "
-                     f"| {s['fall_down_pct']:.1f} | {s['fall_down_pct_extreme10']:.1f} | {s['return_map_uniformity']:.2f} "
+                     f"| {s['fall_down_pct']:.1f} | {s['fall_down_pct_extreme10']:.1f} | {s['mean_seconds']:.1f} "
+                     f"| {s['return_map_uniformity']:.2f} "
                      f"| {s['mean_return']:.1f} |")
     return "\n".join(lines)
 

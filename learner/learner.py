@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 from common import wire
-from common.policy import GaussianPolicy, ValueNet, policy_tensors
+from common.policy import GaussianPolicy, ValueNet, anneal_log_std, policy_tensors
 from common.tasks.registry import make_env
 from learner.config import RunConfig
 from learner.ppo import PPO, Batch
@@ -73,6 +73,7 @@ class Learner:
     def update(self, unrolls: list[wire.UnrollMsg]) -> dict[str, float]:
         batch = self.batch_from(unrolls)
         self.ppo.set_progress(self.env_steps / self.cfg.total_env_steps)
+        anneal_log_std(self.policy, self.cfg.policy, self.env_steps)
         metrics = self.ppo.update(batch, self.generator)
         steps = int(batch.rewards.numel())
         self.env_steps += steps

@@ -38,6 +38,10 @@ class PPOConfig:
     """Weight of the KL(old || new) penalty (UniCon 2020 eq. 7); 0 turns it off."""
     kl_target: float = 0.01
     """Target KL per update for the adaptive learning rate."""
+    kl_stop: float = 0.0
+    """Stop this update's remaining minibatch steps once one minibatch's KL(old || new)
+    exceeds this (Stable-Baselines3's `1.5 * target_kl` rule); 0 turns it off. It bounds how far
+    one batch can move the policy, whatever the learning rate."""
     max_grad_norm: float = 0.5
     """Global gradient-norm clip."""
     normalize_advantages: bool = True
@@ -155,7 +159,10 @@ class PPO:
         n = obs.shape[0]
         sums: dict[str, float] = {}
         steps = 0
+        stopped_early = False
         for _ in range(cfg.epochs):
+            if stopped_early:
+                break
             order = torch.randperm(n, generator=generator)
             for start in range(0, n - cfg.minibatch + 1, cfg.minibatch):
                 idx = order[start : start + cfg.minibatch]
@@ -168,6 +175,9 @@ class PPO:
                 if not torch.isfinite(losses["total"]):
                     self.skipped_updates += 1
                     continue
+                if cfg.kl_stop > 0 and steps and losses["kl"].item() > cfg.kl_stop:
+                    stopped_early = True
+                    break
                 self.optimizer.zero_grad(set_to_none=True)
                 losses["total"].backward()
                 grad_norm = nn.utils.clip_grad_norm_([*self.policy.parameters(), *self.value.parameters()], cfg.max_grad_norm)
@@ -190,6 +200,7 @@ class PPO:
             explained_variance=_explained_variance(flat(values), returns),
             skipped_updates=float(self.skipped_updates),
             log_std=self.policy.log_std.detach().mean().item(),
+            minibatch_steps=float(steps),
         )
         return metrics
 

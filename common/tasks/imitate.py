@@ -250,6 +250,7 @@ class ImitateEnv:
     def _com_velocity_avg(self) -> np.ndarray:
         n = len(self.com_hist) - 1
         if n == 0:
+            mujoco.mj_subtreeVel(self.model, self.data)
             return self.data.subtree_linvel[self.root_body][:2].copy()
         return (self.com_hist[-1][:2] - self.com_hist[0][:2]) / (n * self.dt)
 
@@ -264,6 +265,9 @@ class ImitateEnv:
             refs.append(np.concatenate([self.ref_joints[row], [qref[2]], rot[:, 0], rot[:, 1]]))
         v_target = frame[:2, :2].T @ self.target_velocity()
         v_avg = frame[:2, :2].T @ self._com_velocity_avg()
+        # NOTE: mj_step does not fill subtree_linvel (only sensors that need it do); without this
+        # call the current COM velocity read zero on every step.
+        mujoco.mj_subtreeVel(self.model, d)
         com_vel = frame.T @ d.subtree_linvel[self.root_body]
         phase = 2.0 * math.pi * ((self.tau0 + self.speed * self.k * self.dt) / self.motion.duration_s)
         return np.concatenate([

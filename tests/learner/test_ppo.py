@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
-from common.policy import GaussianPolicy, ObsNormalizer, PolicyConfig, ValueNet
+from common.policy import GaussianPolicy, ObsNormalizer, PolicyConfig, ValueNet, anneal_log_std
 from learner.ppo import PPO, Batch, PPOConfig, gae, ppo_losses
 
 
@@ -93,3 +94,51 @@ def test_update_reduces_loss_on_a_fixed_batch_and_skips_nan():
     ppo.update(bad)
     assert ppo.skipped_updates > 0
     assert all(torch.equal(a, b) for a, b in zip(before, policy.parameters()))
+
+
+def _random_batch(policy: GaussianPolicy, T: int = 16, B: int = 8) -> Batch:
+    obs = torch.randn(T, B, policy.obs_dim)
+    with torch.no_grad():
+        dist = policy.distribution(obs)
+        actions = dist.sample()
+        logp = dist.log_prob(actions).sum(-1)
+    no = torch.zeros(T, B, dtype=torch.bool)
+    return Batch(obs, torch.randn(T, B, policy.obs_dim), actions, logp, torch.randn(T, B), no, no)
+
+
+def test_kl_stop_bounds_how_far_one_update_moves_the_policy():
+    """With a learning rate large enough to wreck the policy, kl_stop ends the update early."""
+    runs = {}
+    for kl_stop in (0.0, 0.02):
+        torch.manual_seed(0)
+        cfg = PolicyConfig(hidden=(16, 16))
+        policy, value = GaussianPolicy(3, 2, cfg), ValueNet(3, cfg)
+        ppo = PPO(policy, value, PPOConfig(minibatch=16, epochs=10, lr=3e-2, kl_stop=kl_stop))
+        runs[kl_stop] = ppo.update(_random_batch(policy))
+    assert runs[0.0]["minibatch_steps"] == 80
+    assert runs[0.02]["minibatch_steps"] < 80
+    assert runs[0.02]["kl"] < runs[0.0]["kl"]
+
+
+def test_variance_controller_anneals_the_mean_log_std_and_keeps_the_spread():
+    """UniCon's policy variance controller: mean log sigma moves linearly, all components alike."""
+    cfg = PolicyConfig(hidden=(8,), init_log_std=-1.0, final_log_std=-2.0, log_std_anneal_steps=1000, learn_log_std=False)
+    policy = GaussianPolicy(3, 4, cfg)
+    assert not policy.log_std.requires_grad
+    with torch.no_grad():
+        policy.log_std.add_(torch.tensor([0.1, -0.1, 0.2, -0.2]))
+    spread = policy.log_std - policy.log_std.mean()
+    anneal_log_std(policy, cfg, 250)
+    assert policy.log_std.mean().item() == pytest.approx(-1.25)
+    torch.testing.assert_close(policy.log_std - policy.log_std.mean(), spread)
+    anneal_log_std(policy, cfg, 5000)
+    assert policy.log_std.mean().item() == pytest.approx(-2.0)
+
+
+def test_a_fixed_log_std_does_not_move_in_an_update():
+    torch.manual_seed(0)
+    cfg = PolicyConfig(hidden=(16,), learn_log_std=False)
+    policy, value = GaussianPolicy(3, 2, cfg), ValueNet(3, cfg)
+    before = policy.log_std.detach().clone()
+    PPO(policy, value, PPOConfig(minibatch=16, epochs=2, lr=1e-2)).update(_random_batch(policy))
+    assert torch.equal(policy.log_std.detach(), before)

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from common.tasks.base import TaskConfig
+from common.tasks.observations import heading, quat_to_mat, yaw_matrix
 from common.tasks.registry import make_env
 
 CFG = TaskConfig(name="lower_biped", control_hz=30.0, sim_hz=480.0, episode_s=30.0)
@@ -100,3 +101,24 @@ def test_set_shape_keeps_the_state_and_updates_the_observation() -> None:
     obs, *_ = env.step(np.zeros(env.act_dim))
     np.testing.assert_allclose(obs[: env.space.dim], new, rtol=1e-6)
     assert env.character.height_m > 1.1 * make_env(CFG, seed=0).character.height_m
+
+
+def test_current_com_velocity_in_the_observation_is_measured() -> None:
+    """The state's current COM velocity (METHOD.md A, s_s) matches the COM moved along qvel by
+    a tiny time step (it once read zero: mj_step does not compute it)."""
+    env = make_env(TaskConfig(name="lower_biped"), seed=0)
+    env.reset(0, env.space.default_array)
+    for _ in range(6):
+        obs, *_ = env.step(np.zeros(env.act_dim))
+    frame = yaw_matrix(heading(quat_to_mat(env.data.qpos[3:7])))
+    com_vel_obs = obs[-5:-2]
+    h = 1e-6
+    data = mujoco.MjData(env.model)
+    data.qpos[:] = env.data.qpos
+    mujoco.mj_forward(env.model, data)
+    before = data.subtree_com[env.root_body].copy()
+    mujoco.mj_integratePos(env.model, data.qpos, env.data.qvel, h)
+    mujoco.mj_forward(env.model, data)
+    finite_diff = frame.T @ ((data.subtree_com[env.root_body] - before) / h)
+    assert np.linalg.norm(com_vel_obs) > 0.1
+    np.testing.assert_allclose(com_vel_obs, finite_diff, atol=0.05 * np.linalg.norm(finite_diff) + 1e-3)
