@@ -83,6 +83,10 @@ class RunConfig:
             raise ValueError(
                 f"--ppo.minibatch {self.ppo.minibatch} exceeds --steps-per-iteration {self.steps_per_iteration}"
             )
+        if self.ppo.kl_stop < 0:
+            raise ValueError(f"--ppo.kl-stop = {self.ppo.kl_stop} must be >= 0 (0 turns it off)")
+        if self.policy.log_std_anneal_steps < 0:
+            raise ValueError(f"--policy.log-std-anneal-steps = {self.policy.log_std_anneal_steps} must be >= 0")
         self.task.substeps  # noqa: B018 - validates sim_hz / control_hz
 
     @property

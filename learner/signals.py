@@ -25,6 +25,10 @@ class StopFlag:
         print(f"\n[morphmimic] {signal.Signals(signum).name}: checkpointing and stopping (again to force)", flush=True)
         self.event.set()
 
+    def request(self) -> None:
+        """Stop the run as Ctrl-C would (for hooks and benchmarks that decide to end it)."""
+        self.event.set()
+
     def restore(self) -> None:
         for sig, handler in self.previous.items():
             signal.signal(sig, handler)

@@ -69,7 +69,7 @@ def main(argv: list[str]) -> int:
     def hook(run: Run, metrics: dict) -> None:
         state["run"] = run
         if time.monotonic() > deadline:
-            run.stop.event.set()
+            run.stop.request()
             return
         if rng.random() > args.fault_rate:
             return

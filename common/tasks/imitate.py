@@ -247,27 +247,32 @@ class ImitateEnv:
         v = self.rot[:2, :2] @ self.v0 * self.speed
         return v * (self.norm.leg_ratio * self.norm.asym if self.cfg.reward_normalization else 1.0)
 
+    def _body_frame(self) -> tuple[np.ndarray, np.ndarray]:
+        """(heading frame `[3, 3]` of the root, end effectors relative to the root in it `[E, 3]`)
+        of the current state; the state and the reward both use them, so `step` computes them once."""
+        d = self.data
+        frame = yaw_matrix(heading(quat_to_mat(d.qpos[3:7])))
+        return frame, (d.xpos[self.ee_ids] - d.qpos[0:3]) @ frame
+
     def _com_velocity_avg(self) -> np.ndarray:
         n = len(self.com_hist) - 1
         if n == 0:
-            mujoco.mj_subtreeVel(self.model, self.data)
+            # NOTE: only right after a reset, where `_obs` has just run mj_subtreeVel.
             return self.data.subtree_linvel[self.root_body][:2].copy()
         return (self.com_hist[-1][:2] - self.com_hist[0][:2]) / (n * self.dt)
 
-    def _obs(self) -> np.ndarray:
+    def _obs(self, body_frame: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
         d = self.data
-        frame = yaw_matrix(heading(quat_to_mat(d.qpos[3:7])))
-        root = d.qpos[0:3]
-        ee = (d.xpos[self.ee_ids] - root) @ frame
+        frame, ee = body_frame or self._body_frame()
+        # NOTE: mj_step does not fill subtree_linvel (only sensors that need it do); without this
+        # call the current COM velocity read zero on every step.
+        mujoco.mj_subtreeVel(self.model, d)
         refs = []
         for row, qref in zip((0, 2, 3), (self.ref_q[0], self.ref_q[2], self.ref_q[3])):
             rot = frame.T @ quat_to_mat(qref[3:7])
             refs.append(np.concatenate([self.ref_joints[row], [qref[2]], rot[:, 0], rot[:, 1]]))
         v_target = frame[:2, :2].T @ self.target_velocity()
         v_avg = frame[:2, :2].T @ self._com_velocity_avg()
-        # NOTE: mj_step does not fill subtree_linvel (only sensors that need it do); without this
-        # call the current COM velocity read zero on every step.
-        mujoco.mj_subtreeVel(self.model, d)
         com_vel = frame.T @ d.subtree_linvel[self.root_body]
         phase = 2.0 * math.pi * ((self.tau0 + self.speed * self.k * self.dt) / self.motion.duration_s)
         return np.concatenate([
@@ -275,13 +280,12 @@ class ImitateEnv:
             ee.reshape(-1), *refs, v_target, v_avg, com_vel, [math.sin(phase), math.cos(phase)],
         ]).astype(np.float32)
 
-    def reward_terms(self) -> dict[str, float]:
+    def reward_terms(self, body_frame: tuple[np.ndarray, np.ndarray] | None = None) -> dict[str, float]:
         """The six weighted terms at the current state against the reference at the same time."""
         d, qref = self.data, self.ref_q[0]
         balls = np.concatenate([[d.qpos[3:7]], d.qpos[self.layout.ball_qpos]])
         balls_ref = np.concatenate([[qref[3:7]], qref[self.layout.ball_qpos]])
-        frame = yaw_matrix(heading(quat_to_mat(d.qpos[3:7])))
-        ee = (d.xpos[self.ee_ids] - d.qpos[0:3]) @ frame
+        frame, ee = body_frame or self._body_frame()
         norm = self.norm if self.cfg.reward_normalization else None
         facing = frame[:2, 0]
         facing_ref = yaw_matrix(heading(quat_to_mat(qref[3:7])))[:2, 0]
@@ -320,10 +324,11 @@ class ImitateEnv:
             return self._obs_safe(), 0.0, False, True, {"diverged": True}
         self.com_hist.append(self.data.subtree_com[self.root_body].copy())
         self._refresh_reference()
-        terms = self.reward_terms()
+        body_frame = self._body_frame()
+        terms = self.reward_terms(body_frame)
         r_imit, r_task, r_reg = rewards.split(terms)
         fell = self.fell()
-        obs = self._obs()
+        obs = self._obs(body_frame)
         truncated = self.k >= self.cfg.episode_steps and not fell
         info = {"diverged": False, "fell": fell, "task_reward": r_task, "imitation_reward": r_imit, "reg_reward": r_reg}
         return obs, r_imit + r_task + r_reg, fell, truncated, info

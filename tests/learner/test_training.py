@@ -164,3 +164,15 @@ def test_bad_config_gets_a_clear_error(tmp_path):
     proc = _cli("--preset", "reach-tiny", "--runs-dir", str(tmp_path), "--resume", str(tmp_path / "missing"))
     out, _ = proc.communicate(timeout=60)
     assert proc.returncode != 0 and "cannot be read" in out and "Traceback" not in out
+
+
+def test_bad_ppo_and_variance_options_name_the_value():
+    from common.policy import PolicyConfig
+    from learner.ppo import PPOConfig
+
+    import pytest
+
+    with pytest.raises(ValueError, match=r"--ppo.kl-stop = -0.1 must be >= 0"):
+        RunConfig(ppo=PPOConfig(kl_stop=-0.1))
+    with pytest.raises(ValueError, match=r"--policy.log-std-anneal-steps = -5 must be >= 0"):
+        RunConfig(policy=PolicyConfig(log_std_anneal_steps=-5))

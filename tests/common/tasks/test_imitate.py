@@ -122,3 +122,14 @@ def test_current_com_velocity_in_the_observation_is_measured() -> None:
     finite_diff = frame.T @ ((data.subtree_com[env.root_body] - before) / h)
     assert np.linalg.norm(com_vel_obs) > 0.1
     np.testing.assert_allclose(com_vel_obs, finite_diff, atol=0.05 * np.linalg.norm(finite_diff) + 1e-3)
+
+
+def test_rotation_vectors_match_scipy() -> None:
+    from scipy.spatial.transform import Rotation
+
+    from common.tasks.observations import quat_to_rotvec
+
+    q = np.random.default_rng(0).normal(size=(500, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    q[0] = (1.0, 0.0, 0.0, 0.0)
+    np.testing.assert_allclose(quat_to_rotvec(q), Rotation.from_quat(q, scalar_first=True).as_rotvec(), atol=1e-12)
