@@ -110,7 +110,7 @@ class Learner:
         self.policy.load_state_dict(state["policy"])
         self.value.load_state_dict(state["value"])
         self.ppo.optimizer.load_state_dict(state["optimizer"])
-        self.ppo.lr = float(state["lr"])
+        self.ppo.restore_lr(float(state["lr"]))
         self.iteration = int(state["iteration"])
         self.env_steps = int(state["env_steps"])
         self.policy_version = int(state["policy_version"])

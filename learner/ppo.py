@@ -39,11 +39,12 @@ class PPOConfig:
     kl_target: float = 0.01
     """Target KL per update for the adaptive learning rate."""
     kl_stop: float = 0.0
-    """Stop this update's remaining minibatch steps once one minibatch's KL(old || new)
-    exceeds this (Stable-Baselines3's `1.5 * target_kl` rule); 0 turns it off. It bounds how far
-    one batch can move the policy, whatever the learning rate."""
+    """Stop moving the policy for the rest of this update once one minibatch's KL(old || new)
+    exceeds this (the `1.5 * target_kl` early stop of Spinning Up and Stable-Baselines3); the
+    value network keeps training for all epochs, as in Spinning Up's separate value iterations.
+    0 turns it off. It bounds how far one batch can move the policy, whatever the learning rate."""
     max_grad_norm: float = 0.5
-    """Global gradient-norm clip."""
+    """Gradient-norm clip, applied to the policy's and the value net's gradients separately."""
     normalize_advantages: bool = True
     """Standardize advantages per minibatch."""
 
@@ -137,6 +138,14 @@ class PPO:
             raise ValueError(f"lr_schedule {self.cfg.lr_schedule!r} is not one of constant | linear | adaptive")
         self._apply_lr()
 
+    def restore_lr(self, saved_lr: float) -> None:
+        """On resume: the adaptive schedule's step size is state and comes back; the constant
+        and linear schedules follow the config, so `--ppo.lr` on a resumed run takes effect
+        (the optimizer's state dict would otherwise bring the old rate back)."""
+        if self.cfg.lr_schedule == "adaptive":
+            self.lr = saved_lr
+        self._apply_lr()
+
     def _apply_lr(self) -> None:
         for group in self.optimizer.param_groups:
             group["lr"] = self.lr
@@ -158,11 +167,9 @@ class PPO:
         adv, returns = flat(adv), flat(returns)
         n = obs.shape[0]
         sums: dict[str, float] = {}
-        steps = 0
-        stopped_early = False
+        steps = policy_steps = 0
+        policy_active = True
         for _ in range(cfg.epochs):
-            if stopped_early:
-                break
             order = torch.randperm(n, generator=generator)
             for start in range(0, n - cfg.minibatch + 1, cfg.minibatch):
                 idx = order[start : start + cfg.minibatch]
@@ -175,17 +182,23 @@ class PPO:
                 if not torch.isfinite(losses["total"]):
                     self.skipped_updates += 1
                     continue
-                if cfg.kl_stop > 0 and steps and losses["kl"].item() > cfg.kl_stop:
-                    stopped_early = True
-                    break
+                if policy_active and cfg.kl_stop > 0 and policy_steps and losses["kl"].item() > cfg.kl_stop:
+                    policy_active = False
                 self.optimizer.zero_grad(set_to_none=True)
-                losses["total"].backward()
-                grad_norm = nn.utils.clip_grad_norm_([*self.policy.parameters(), *self.value.parameters()], cfg.max_grad_norm)
+                # NOTE: once the policy has stopped, only the value loss has a gradient; the
+                # policy's parameters keep grad None, which Adam skips (no moment decay either).
+                (losses["total"] if policy_active else cfg.vf_coef * losses["value"]).backward()
+                # NOTE: clipped apart: the value loss's gradient is ~100x the policy's (returns
+                # of ~100), so one joint clip let the value loss set the policy's step.
+                grad_norm = nn.utils.clip_grad_norm_(list(self.policy.parameters()), cfg.max_grad_norm)
+                value_grad_norm = nn.utils.clip_grad_norm_(list(self.value.parameters()), cfg.max_grad_norm)
                 self.optimizer.step()
                 for k, v_ in losses.items():
                     sums[k] = sums.get(k, 0.0) + v_.item()
                 sums["grad_norm"] = sums.get("grad_norm", 0.0) + float(grad_norm)
+                sums["value_grad_norm"] = sums.get("value_grad_norm", 0.0) + float(value_grad_norm)
                 steps += 1
+                policy_steps += policy_active
         metrics = {k: v / max(steps, 1) for k, v in sums.items()}
         if cfg.lr_schedule == "adaptive" and steps:
             # Schulman et al.'s adaptive rule, applied to the step size rather than a KL weight.
@@ -201,6 +214,7 @@ class PPO:
             skipped_updates=float(self.skipped_updates),
             log_std=self.policy.log_std.detach().mean().item(),
             minibatch_steps=float(steps),
+            policy_steps=float(policy_steps),
         )
         return metrics
 

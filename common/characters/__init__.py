@@ -13,12 +13,12 @@ from common.characters.render import ensure_offscreen_gl
 
 ensure_offscreen_gl()  # NOTE: must precede the first `import mujoco` to take effect.
 
-from common.characters.character import DEFAULT_TIMESTEP_S, Character, list_presets, load_character
+from common.characters.character import DEFAULT_TIMESTEP_S, Character, CharacterFactory, list_presets, load_character
 from common.characters.errors import ShapeError
 from common.characters.morph import morph
 from common.characters.shape_space import BodyPart, ShapeParam, ShapeSpace
 
 __all__ = [
-    "Character", "load_character", "list_presets", "morph", "ShapeError", "ShapeSpace", "ShapeParam",
+    "Character", "CharacterFactory", "load_character", "list_presets", "morph", "ShapeError", "ShapeSpace", "ShapeParam",
     "BodyPart", "DEFAULT_TIMESTEP_S",
 ]

@@ -1,7 +1,8 @@
 """`morphmimic bench characters`: what a character costs, per preset, in one table.
 
-Columns: build+compile time of a new random shape (F applied to a fresh base, then compiled),
-standing-pose solve time, on-the-fly shape change (`morph`: F in place + `MjSpec.recompile` +
+Columns: build+compile time of a new random shape (F applied to a fresh base, then compiled:
+`load_character`), the same through a `CharacterFactory` that keeps the base (what an
+environment pays per episode) and the ratio of the two, standing-pose solve time, on-the-fly shape change (`morph`: F in place + `MjSpec.recompile` +
 lift), and simulation cost per 30 Hz control step under zero and uniform random PD targets
 (physics at the characters' default step unless --timestep is given).
 """
@@ -24,13 +25,16 @@ def _ms(fn, n: int) -> float:
 def bench_preset(preset: str, n_shapes: int, n_control: int, timestep_s: float | None, seed: int) -> dict:
     import mujoco
 
-    from common.characters import load_character, morph
+    from common.characters import CharacterFactory, load_character, morph
 
     rng = np.random.default_rng(seed)
     space = load_character(preset, timestep_s=timestep_s).space
     shapes = [space.sample(rng) for _ in range(n_shapes)]
     it = iter(shapes * 2)
     build_ms = _ms(lambda: load_character(preset, next(it), timestep_s=timestep_s), n_shapes)
+    factory = CharacterFactory(preset, timestep_s=timestep_s)
+    it = iter(shapes * 2)
+    factory_ms = _ms(lambda: factory.make(next(it)), n_shapes)
     chars = [load_character(preset, s, timestep_s=timestep_s) for s in shapes]
     it_c = iter(chars)
     pose_ms = _ms(lambda: next(it_c).standing_qpos, n_shapes)
@@ -47,7 +51,7 @@ def bench_preset(preset: str, n_shapes: int, n_control: int, timestep_s: float |
     m = ch.model
     substeps = max(1, int(round(1.0 / 30.0 / m.opt.timestep)))
     lo, hi = m.actuator_ctrlrange.T
-    out = {"preset": preset, "build_ms": build_ms, "pose_ms": pose_ms, "morph_ms": morph_ms, "substeps": substeps,
+    out = {"preset": preset, "build_ms": build_ms, "factory_ms": factory_ms, "pose_ms": pose_ms, "morph_ms": morph_ms, "substeps": substeps,
            "dt_ms": m.opt.timestep * 1e3}
     for mode in ("zero", "random"):
         d = ch.make_data()
@@ -71,13 +75,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--timestep", type=float, default=None, help="physics step [s] (default: the preset's)")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
-    header = (f"{'preset':<12} {'build+compile':>13} {'pose solve':>10} {'morph':>8} {'dt':>7} {'substeps':>8} "
+    header = (f"{'preset':<12} {'build+compile':>13} {'factory':>8} {'ratio':>5} {'pose solve':>10} {'morph':>8} {'dt':>7} {'substeps':>8} "
               f"{'ctrl step zero':>14} {'ctrl step rand':>14} {'ctrl steps/s':>12}")
     print(header)
     print("-" * len(header))
     for preset in args.presets.split(","):
         r = bench_preset(preset, args.shapes, args.control_steps, args.timestep, args.seed)
-        print(f"{preset:<12} {r['build_ms']:>10.1f} ms {r['pose_ms']:>7.1f} ms {r['morph_ms']:>5.1f} ms "
+        print(f"{preset:<12} {r['build_ms']:>10.1f} ms {r['factory_ms']:>5.1f} ms {r['build_ms'] / r['factory_ms']:>5.1f} {r['pose_ms']:>7.1f} ms {r['morph_ms']:>5.1f} ms "
               f"{r['dt_ms']:>4.2f}ms {r['substeps']:>8d} {r['zero_ms']:>11.2f} ms {r['random_ms']:>11.2f} ms "
               f"{1e3 / r['random_ms']:>12.0f}")
     return 0

@@ -211,21 +211,45 @@ def load_character(
     the preset's parameterizations (`Character.base.spaces`). timestep_s: physics step [s]
     (DEFAULT_TIMESTEP_S for presets; a user MJCF keeps its own unless given).
     Raises ShapeError on any bad input."""
-    if timestep_s is not None and not (np.isfinite(timestep_s) and 0 < timestep_s <= 0.05):
-        raise ShapeError(f"timestep_s = {timestep_s} is outside (0, 0.05] s")
-    base = build_base(preset, timestep_s if timestep_s is not None else DEFAULT_TIMESTEP_S)
-    if timestep_s is not None:
-        base.spec.option.timestep = timestep_s
-    if parameterization not in base.spaces:
-        raise ShapeError(f"unknown parameterization {parameterization!r} for {base.preset!r}; "
-                         f"choose one of {', '.join(base.spaces)}")
-    space = base.spaces[parameterization]
-    values = space.validate(shape)
-    base_model = _compile(base.spec, base.preset)
-    geometry = BaseGeometry.capture(base.spec, base_model)
-    reshape(base.spec, base, geometry, space, values)
-    model = _compile(base.spec, base.preset)
-    return Character(base.preset, base.spec, model, base, geometry, space, values, pose_config)
+    return CharacterFactory(preset, parameterization, timestep_s, pose_config).make(shape)
+
+
+class CharacterFactory:
+    """Many shapes of one preset and parameterization, built from one base.
+
+    `load_character` builds the base character B (MjSpec), compiles it and captures its
+    geometry for every call; for a stream of shapes (an environment draws one per episode) that
+    was 11 of its 14.5 ms on the lower-body biped. A factory does it once, and `make` only
+    re-shapes the base spec (`reshape` writes absolute values, so each call is a clean re-shape)
+    and compiles it: the models are identical to `load_character`'s.
+
+    NOTE: every Character a factory makes shares its spec: a Character's `model` stays valid,
+    but its `spec` describes the latest shape made (or morphed). Use `load_character` for a
+    Character that owns its spec.
+    """
+
+    def __init__(self, preset: str, parameterization: str = "random", timestep_s: float | None = None,
+                 pose_config: PoseSolveConfig = PoseSolveConfig()):
+        if timestep_s is not None and not (np.isfinite(timestep_s) and 0 < timestep_s <= 0.05):
+            raise ShapeError(f"timestep_s = {timestep_s} is outside (0, 0.05] s")
+        base = build_base(preset, timestep_s if timestep_s is not None else DEFAULT_TIMESTEP_S)
+        if timestep_s is not None:
+            base.spec.option.timestep = timestep_s
+        if parameterization not in base.spaces:
+            raise ShapeError(f"unknown parameterization {parameterization!r} for {base.preset!r}; "
+                             f"choose one of {', '.join(base.spaces)}")
+        self.base = base
+        self.space = base.spaces[parameterization]
+        self.pose_config = pose_config
+        self.geometry = BaseGeometry.capture(base.spec, _compile(base.spec, base.preset))
+
+    def make(self, shape: Mapping[str, float] | Sequence[float] | np.ndarray | None = None) -> Character:
+        """C = F(B, b) for shape values b (as in `load_character`); raises ShapeError on bad values."""
+        values = self.space.validate(shape)
+        reshape(self.base.spec, self.base, self.geometry, self.space, values)
+        model = _compile(self.base.spec, self.base.preset)
+        return Character(self.base.preset, self.base.spec, model, self.base, self.geometry, self.space, values,
+                         self.pose_config)
 
 
 def reshape(spec: mujoco.MjSpec, base: BaseCharacter, geometry: BaseGeometry, space: ShapeSpace,
@@ -243,4 +267,4 @@ def _compile(spec: mujoco.MjSpec, name: str) -> mujoco.MjModel:
         raise ShapeError(f"character {name!r} does not compile: {exc}") from exc
 
 
-__all__ = ["Character", "load_character", "list_presets", "build_base", "reshape", "FLOOR_NAME", "DEFAULT_TIMESTEP_S"]
+__all__ = ["Character", "CharacterFactory", "load_character", "list_presets", "build_base", "reshape", "FLOOR_NAME", "DEFAULT_TIMESTEP_S"]

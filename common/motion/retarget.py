@@ -69,43 +69,53 @@ def _geoms_of(model: mujoco.MjModel, foot_geom: str) -> np.ndarray:
     return np.array([g for g in range(model.ngeom) if model.geom_bodyid[g] in bodies], dtype=np.int64)
 
 
+def _lowest_points(model: mujoco.MjModel, geom_ids: np.ndarray, xpos: np.ndarray, xmat: np.ndarray) -> np.ndarray:
+    """Height (m) of the lowest point of geoms `geom_ids` [G] in poses given by their world
+    positions `xpos` [T, G, 3] and rotation matrices `xmat` [T, G, 9]: [T, G] (exact for
+    primitive shapes, the bounding sphere for others)."""
+    r = xmat.reshape(*xmat.shape[:-1], 3, 3)[..., 2, :]  # world z row of each geom's rotation
+    drop = np.empty(r.shape[:-1])
+    for kind in set(model.geom_type[geom_ids].tolist()):
+        sel = model.geom_type[geom_ids] == kind
+        size, rk = model.geom_size[geom_ids[sel]], r[..., sel, :]
+        if kind == mujoco.mjtGeom.mjGEOM_BOX:
+            drop[..., sel] = np.sum(np.abs(rk) * size, axis=-1)
+        elif kind == mujoco.mjtGeom.mjGEOM_SPHERE:
+            drop[..., sel] = size[:, 0]
+        elif kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
+            drop[..., sel] = np.abs(rk[..., 2]) * size[:, 1] + size[:, 0]
+        elif kind == mujoco.mjtGeom.mjGEOM_CYLINDER:
+            drop[..., sel] = np.abs(rk[..., 2]) * size[:, 1] + size[:, 0] * np.sqrt(np.maximum(0.0, 1.0 - rk[..., 2] ** 2))
+        elif kind == mujoco.mjtGeom.mjGEOM_ELLIPSOID:
+            drop[..., sel] = np.sqrt(np.sum((rk * size) ** 2, axis=-1))
+        else:
+            drop[..., sel] = model.geom_rbound[geom_ids[sel]]
+    return xpos[..., 2] - drop
+
+
 def lowest_z(model: mujoco.MjModel, data: mujoco.MjData, geom_ids: np.ndarray) -> float:
     """Height (m) of the lowest point of some geoms in the current pose (exact for primitive shapes)."""
-    out = np.inf
-    for g in geom_ids:
-        r = data.geom_xmat[g].reshape(3, 3)[2]
-        s = model.geom_size[g]
-        z = data.geom_xpos[g, 2]
-        kind = model.geom_type[g]
-        if kind == mujoco.mjtGeom.mjGEOM_BOX:
-            z -= np.abs(r) @ s
-        elif kind == mujoco.mjtGeom.mjGEOM_SPHERE:
-            z -= s[0]
-        elif kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
-            z -= abs(r[2]) * s[1] + s[0]
-        elif kind == mujoco.mjtGeom.mjGEOM_CYLINDER:
-            z -= abs(r[2]) * s[1] + s[0] * np.sqrt(max(0.0, 1.0 - r[2] ** 2))
-        elif kind == mujoco.mjtGeom.mjGEOM_ELLIPSOID:
-            z -= np.sqrt(np.sum((r * s) ** 2))
-        else:
-            z -= model.geom_rbound[g]
-        out = min(out, z)
-    return float(out)
+    return float(_lowest_points(model, geom_ids, data.geom_xpos[geom_ids], data.geom_xmat[geom_ids]).min())
 
 
 def foot_heights(model: mujoco.MjModel, qpos_frames: np.ndarray, foot_geoms: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
     """(heights (T, F) m of each foot's lowest point, foot body positions (T, F, 3) m)."""
     data = mujoco.MjData(model)
     geoms = [_geoms_of(model, f) for f in foot_geoms]
+    every = np.concatenate(geoms)
     bodies = [int(model.geom(f).bodyid[0]) for f in foot_geoms]
-    h = np.zeros((len(qpos_frames), len(foot_geoms)))
+    xpos = np.zeros((len(qpos_frames), len(every), 3))
+    xmat = np.zeros((len(qpos_frames), len(every), 9))
     pos = np.zeros((len(qpos_frames), len(foot_geoms), 3))
     for k, q in enumerate(qpos_frames):
         data.qpos[:] = q
         mujoco.mj_kinematics(model, data)
-        for i, g in enumerate(geoms):
-            h[k, i] = lowest_z(model, data, g)
-            pos[k, i] = data.xpos[bodies[i]]
+        xpos[k] = data.geom_xpos[every]
+        xmat[k] = data.geom_xmat[every]
+        pos[k] = data.xpos[bodies]
+    low = _lowest_points(model, every, xpos, xmat)
+    ends = np.cumsum([len(g) for g in geoms])
+    h = np.stack([low[:, e - len(g):e].min(axis=1) for g, e in zip(geoms, ends)], axis=1)
     return h, pos
 
 
@@ -136,36 +146,60 @@ def _leg_dofs(model: mujoco.MjModel, body: int) -> np.ndarray:
     return np.array(sorted(dofs), dtype=np.int64)
 
 
-def _clamp_hinges(model: mujoco.MjModel, data: mujoco.MjData, joints: list[int]) -> None:
-    """Keep limited hinge joints (knees) inside their range: a solve must not bend a knee backward."""
-    for j in joints:
-        adr = model.jnt_qposadr[j]
-        data.qpos[adr] = np.clip(data.qpos[adr], *model.jnt_range[j])
+@dataclass(frozen=True)
+class _Leg:
+    """What the leg solve needs of one foot, computed once per retarget: the foot body, the DOFs
+    between root and foot, and the limited hinges among them (qpos address, lower, upper)."""
+
+    body: int
+    dofs: np.ndarray
+    hinge_qpos: np.ndarray
+    hinge_lo: np.ndarray
+    hinge_hi: np.ndarray
+
+    @staticmethod
+    def of(model: mujoco.MjModel, body: int) -> "_Leg":
+        dofs = _leg_dofs(model, body)
+        joints = sorted(set(model.dof_jntid[dofs].tolist()))
+        hinges = [j for j in joints if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE and model.jnt_limited[j]]
+        return _Leg(body, dofs, model.jnt_qposadr[hinges].astype(np.int64),
+                    model.jnt_range[hinges, 0].copy(), model.jnt_range[hinges, 1].copy())
+
+    def clamp_hinges(self, data: mujoco.MjData) -> None:
+        """Keep limited hinge joints (knees) inside their range: a solve must not bend a knee backward."""
+        data.qpos[self.hinge_qpos] = np.clip(data.qpos[self.hinge_qpos], self.hinge_lo, self.hinge_hi)
 
 
-def _lift_foot(model: mujoco.MjModel, data: mujoco.MjData, body: int, dofs: np.ndarray, lift_m: float, cfg: RetargetConfig) -> None:
-    """Raise a foot body by lift_m (m) keeping its orientation, moving only `dofs`; in place on data.qpos."""
+def _lift_foot(model: mujoco.MjModel, data: mujoco.MjData, leg: _Leg, lift_m: float, cfg: RetargetConfig) -> None:
+    """Raise a foot body by lift_m (m) keeping its orientation, moving only the leg's DOFs; in
+    place on data.qpos. Damped Gauss-Newton; the normal equations (n_dofs square) are solved
+    with MuJoCo's Cholesky, which costs a tenth of numpy's per-call overhead at this size."""
+    body, dofs, n = leg.body, leg.dofs, len(leg.dofs)
     mujoco.mj_kinematics(model, data)
     mujoco.mj_comPos(model, data)
     target_p = data.xpos[body] + np.array([0.0, 0.0, lift_m])
     target_q = data.xquat[body].copy()
     jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
-    err_r, qv = np.zeros(3), np.zeros(model.nv)
-    hinges = [j for j in sorted(set(model.dof_jntid[dofs].tolist()))
-              if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE and model.jnt_limited[j]]
+    err, err_r, qv = np.zeros(6), np.zeros(3), np.zeros(model.nv)
+    w = cfg.ik_orientation_weight_m
+    damping = cfg.ik_damping * np.eye(n)
+    jac = np.zeros((6, n))
+    step = np.zeros(n)
     for _ in range(cfg.ik_iterations):
+        err[:3] = target_p - data.xpos[body]
+        if err[0] * err[0] + err[1] * err[1] + err[2] * err[2] < 1e-8:
+            break
         mujoco.mj_jacBody(model, data, jacp, jacr, body)
         mujoco.mju_subQuat(err_r, target_q, data.xquat[body])
-        w = cfg.ik_orientation_weight_m
-        err = np.concatenate([target_p - data.xpos[body], w * err_r])
-        if np.linalg.norm(err[:3]) < 1e-4:
-            break
-        jac = np.concatenate([jacp[:, dofs], w * jacr[:, dofs]])
-        step = np.linalg.solve(jac.T @ jac + cfg.ik_damping * np.eye(len(dofs)), jac.T @ err)
-        qv[:] = 0.0
+        err[3:] = w * err_r
+        jac[:3] = jacp[:, dofs]
+        jac[3:] = w * jacr[:, dofs]
+        normal = jac.T @ jac + damping
+        mujoco.mju_cholFactor(normal, 0.0)
+        mujoco.mju_cholSolve(step, normal, jac.T @ err)
         qv[dofs] = step
         mujoco.mj_integratePos(model, data.qpos, qv, 1.0)
-        _clamp_hinges(model, data, hinges)
+        leg.clamp_hinges(data)
         mujoco.mj_kinematics(model, data)
         mujoco.mj_comPos(model, data)
 
@@ -189,8 +223,7 @@ def retarget_qpos(clip: Clip, model: mujoco.MjModel, foot_geoms: tuple[str, ...]
     qpos[:, 2] += dz
     h = h + dz[:, None]
     data = mujoco.MjData(model)
-    bodies = [int(model.geom(f).bodyid[0]) for f in foot_geoms]
-    dofs = [_leg_dofs(model, b) for b in bodies]
+    legs = [_Leg.of(model, int(model.geom(f).bodyid[0])) for f in foot_geoms]
     geoms = [_geoms_of(model, f) for f in foot_geoms]
     for k, i in zip(*np.nonzero(h < -cfg.ik_tolerance_m)):
         data.qpos[:] = qpos[k]
@@ -199,7 +232,7 @@ def retarget_qpos(clip: Clip, model: mujoco.MjModel, foot_geoms: tuple[str, ...]
         # body: measure again and lift the rest, a few rounds at most.
         for attempt in range(4):
             before = depth
-            _lift_foot(model, data, bodies[i], dofs[i], depth, cfg)
+            _lift_foot(model, data, legs[i], depth, cfg)
             depth = -lowest_z(model, data, geoms[i])
             if depth < cfg.ik_tolerance_m:
                 break
@@ -207,10 +240,9 @@ def retarget_qpos(clip: Clip, model: mujoco.MjModel, foot_geoms: tuple[str, ...]
                 # NOTE: a straight leg is a singular pose (no first-order way to shorten it):
                 # bend the chain a little, one way then the other, and solve again.
                 kick = np.zeros(model.nv)
-                kick[dofs[i]] = 0.1 if attempt % 2 == 0 else -0.2
+                kick[legs[i].dofs] = 0.1 if attempt % 2 == 0 else -0.2
                 mujoco.mj_integratePos(model, data.qpos, kick, 1.0)
-                _clamp_hinges(model, data, [j for j in set(model.dof_jntid[dofs[i]].tolist())
-                                            if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE and model.jnt_limited[j]])
+                legs[i].clamp_hinges(data)
                 mujoco.mj_kinematics(model, data)
                 depth = -lowest_z(model, data, geoms[i])
         qpos[k] = data.qpos

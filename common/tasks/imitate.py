@@ -28,6 +28,7 @@ import math
 import mujoco
 import numpy as np
 
+from common.characters import CharacterFactory
 from common.params import ParamSpace
 from common.tasks import references, rewards
 from common.tasks.base import TaskConfig, step_physics
@@ -101,6 +102,7 @@ class ImitateEnv:
         self.tau_scale = self.base.model.actuator_forcerange[:, 1].copy()
         self._base_legs = self._legs(self.base)
         self._cache: collections.OrderedDict[bytes, tuple] = collections.OrderedDict()
+        self._factory = CharacterFactory(self.preset, cfg.parameterization, timestep_s=self.timestep_s)
         self.dt = 1.0 / cfg.control_hz
         self._look = [int(round(x * cfg.control_hz)) for x in LOOKAHEAD_S]
         self._load(self.space.default_array)
@@ -118,9 +120,7 @@ class ImitateEnv:
         if key in self._cache:
             self._cache.move_to_end(key)
         else:
-            from common.characters import load_character
-
-            ch = load_character(self.preset, shape, self.cfg.parameterization, timestep_s=self.timestep_s)
+            ch = self._factory.make(shape)
             motion = references.play(ch, self.clip_id, self.timestep_s)
             norm = rewards.Normalization.from_legs(self._legs(ch), self._base_legs, ch.mass_kg, self.base.mass_kg)
             self._cache[key] = (ch, motion, norm)

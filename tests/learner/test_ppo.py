@@ -107,17 +107,23 @@ def _random_batch(policy: GaussianPolicy, T: int = 16, B: int = 8) -> Batch:
 
 
 def test_kl_stop_bounds_how_far_one_update_moves_the_policy():
-    """With a learning rate large enough to wreck the policy, kl_stop ends the update early."""
-    runs = {}
+    """With a learning rate large enough to wreck the policy, kl_stop stops the policy early,
+    while the value network trains on for every epoch."""
+    runs, values = {}, {}
     for kl_stop in (0.0, 0.02):
         torch.manual_seed(0)
         cfg = PolicyConfig(hidden=(16, 16))
         policy, value = GaussianPolicy(3, 2, cfg), ValueNet(3, cfg)
         ppo = PPO(policy, value, PPOConfig(minibatch=16, epochs=10, lr=3e-2, kl_stop=kl_stop))
-        runs[kl_stop] = ppo.update(_random_batch(policy))
-    assert runs[0.0]["minibatch_steps"] == 80
-    assert runs[0.02]["minibatch_steps"] < 80
+        batch = _random_batch(policy)
+        runs[kl_stop] = ppo.update(batch)
+        values[kl_stop] = value(policy.normalizer(batch.obs)).detach()
+    assert runs[0.0]["minibatch_steps"] == runs[0.0]["policy_steps"] == 80
+    assert runs[0.02]["minibatch_steps"] == 80
+    assert runs[0.02]["policy_steps"] < 80
     assert runs[0.02]["kl"] < runs[0.0]["kl"]
+    # The value net saw the same 80 steps either way (its loss does not depend on the policy).
+    torch.testing.assert_close(values[0.02], values[0.0])
 
 
 def test_variance_controller_anneals_the_mean_log_std_and_keeps_the_spread():
@@ -142,3 +148,19 @@ def test_a_fixed_log_std_does_not_move_in_an_update():
     before = policy.log_std.detach().clone()
     PPO(policy, value, PPOConfig(minibatch=16, epochs=2, lr=1e-2)).update(_random_batch(policy))
     assert torch.equal(policy.log_std.detach(), before)
+
+
+@pytest.mark.parametrize("schedule, expected", [("constant", 1e-4), ("linear", 1e-4), ("adaptive", "saved")])
+def test_resumed_step_size_follows_the_config_unless_the_schedule_adapts_it(schedule, expected):
+    """`--ppo.lr` on a resumed run takes effect; only the adaptive schedule's rate is state."""
+    cfg = PolicyConfig(hidden=(8,))
+    policy, value = GaussianPolicy(3, 2, cfg), ValueNet(3, cfg)
+    saved = PPO(policy, value, PPOConfig(lr=7e-4, lr_schedule=schedule))
+    saved.update(_random_batch(policy))
+    resumed = PPO(policy, value, PPOConfig(lr=1e-4, lr_schedule=schedule))
+    resumed.optimizer.load_state_dict(saved.optimizer.state_dict())
+    resumed.restore_lr(saved.lr)
+    expected = saved.lr if expected == "saved" else expected
+    assert saved.lr != pytest.approx(1e-4)
+    assert resumed.lr == pytest.approx(expected)
+    assert all(g["lr"] == pytest.approx(expected) for g in resumed.optimizer.param_groups)

@@ -101,3 +101,34 @@ def test_user_mjcf_random_shape_compiles():
     ch = load_character(f"mjcf:{FISH_XML}", {"global_x": 1.3, "tail2_z": 1.2})
     assert ch.is_swimmer
     assert ch.model.nbody == 6
+
+
+MODEL_FIELDS = ("body_pos", "body_mass", "body_inertia", "geom_size", "geom_pos", "geom_type", "jnt_pos",
+                "actuator_forcerange", "actuator_gainprm")
+
+
+@pytest.mark.parametrize("preset", ["lower_biped", "quadruped", "fish"])
+def test_factory_models_are_load_characters_models_for_any_order_of_shapes(preset):
+    """A CharacterFactory re-shapes one base spec: each model must equal a fresh load_character's,
+    also after an earlier make and a morph have left the shared spec in another shape."""
+    from common.characters import CharacterFactory, morph
+
+    factory = CharacterFactory(preset, "random")
+    rng = np.random.default_rng(7)
+    shapes = [factory.space.sample(rng) for _ in range(3)]
+    first = factory.make(shapes[0])
+    morph(first, shapes[1], first.make_data())
+    for shape in (shapes[2], shapes[0]):
+        made, fresh = factory.make(shape).model, load_character(preset, shape, "random").model
+        for field in MODEL_FIELDS:
+            np.testing.assert_array_equal(getattr(made, field), getattr(fresh, field), err_msg=f"{preset} {field}")
+    np.testing.assert_array_equal(first.model.body_mass, load_character(preset, shapes[0], "random").model.body_mass)
+
+
+def test_factory_rejects_bad_input_like_load_character():
+    from common.characters import CharacterFactory
+
+    with pytest.raises(ShapeError, match="unknown parameterization 'nope'"):
+        CharacterFactory("lower_biped", "nope")
+    with pytest.raises(ShapeError, match="global_z"):
+        CharacterFactory("lower_biped", "random").make({"global_z": 9.0})
