@@ -31,6 +31,8 @@ class Learner:
         self.env_steps = 0
         self.policy_version = 0
         self.episodes = 0
+        self.train_seconds = 0.0
+        """Wall seconds spent training, summed over every session of a resumed run (checkpointed)."""
         self.recent_returns: collections.deque[float] = collections.deque(maxlen=100)
         self.recent_lengths: collections.deque[int] = collections.deque(maxlen=100)
         self.counters: collections.Counter[str] = collections.Counter()
@@ -95,6 +97,7 @@ class Learner:
             "env_steps": self.env_steps,
             "policy_version": self.policy_version,
             "episodes": self.episodes,
+            "train_seconds": self.train_seconds,
             "policy": self.policy.state_dict(),
             "value": self.value.state_dict(),
             "optimizer": self.ppo.optimizer.state_dict(),
@@ -115,6 +118,8 @@ class Learner:
         self.env_steps = int(state["env_steps"])
         self.policy_version = int(state["policy_version"])
         self.episodes = int(state["episodes"])
+        # NOTE: checkpoints before train_seconds existed resume with the time unknown (NaN).
+        self.train_seconds = float(state.get("train_seconds", float("nan")))
         self.counters = collections.Counter(state["counters"])
         self.recent_returns.extend(state["recent_returns"])
         self.recent_lengths.extend(state["recent_lengths"])

@@ -3,10 +3,14 @@ checkpoint on the same random shapes, against environment steps and wall time.
 
     python -m learner.learning_curve --ckpt-dir runs/history/lower_biped/ckpt --shapes 100 --episode-s 10
 
-Wall time of a checkpoint = its file's modification time minus `--start` (default: the
-modification time of the run's `config.json`, written when training starts; pass the run
-directory with `--run-dir`). Writes `curve.json` and `curve.png` into `--out` and prints a
-table with the first checkpoint below `--target` fall-down %.
+Wall time of a checkpoint: the training seconds it records (summed over every session of a
+resumed run, so pauses between sessions do not count). Checkpoints written before that was
+recorded fall back to the file's modification time minus `--start` (default: the modification
+time of the run's `config.json`, written when training starts; pass the run directory with
+`--run-dir`). Writes `curve.json` and `curve.png` into `--out` and prints a table with the
+first checkpoint below `--target` fall-down %. Rows of an earlier `curve.json` in `--out` made
+with the same shapes, episode length and seed are reused, so a growing run is evaluated only
+on its new checkpoints.
 """
 
 from __future__ import annotations
@@ -44,16 +48,22 @@ def main(argv: list[str]) -> int:
     start = args.start or (os.path.getmtime(Path(args.run_dir) / "config.json") if args.run_dir else 0.0)
     out = Path(args.out) if args.out else Path(args.ckpt_dir).parent / "curve"
     out.mkdir(parents=True, exist_ok=True)
-    rows = []
+    rows, done = [], _earlier_rows(out / "curve.json", args)
+    fallback_wall = _wall_from_file_times(checkpoint.list_checkpoints(Path(args.ckpt_dir)), start)
     for c in ckpts:
         loaded = eval_core.load(c)
+        if int(loaded.state["iteration"]) in done:
+            rows.append(done[int(loaded.state["iteration"])])
+            continue
         from common.tasks.registry import make_env
 
         env = make_env(eval_core.eval_task(loaded.cfg.task, args.episode_s), seed=0)
         shapes = eval_core.eval_shapes(env.space, args.shapes, args.seed)
         res = eval_core.evaluate(loaded, shapes, args.episode_s, args.seed, args.workers)
         s = eval_core.summarize(res, env.space, getattr(env, "n_shape", env.space.dim))
-        wall = os.path.getmtime(c / checkpoint.FILE) - start if start else float("nan")
+        wall = float(loaded.state.get("train_seconds", float("nan")))
+        if not np.isfinite(wall):
+            wall = fallback_wall.get(c, float("nan"))
         rows.append({"iteration": int(loaded.state["iteration"]), "env_steps": int(loaded.state["env_steps"]),
                      "wall_s": wall, **s})
         print(f"[curve] it {rows[-1]['iteration']:5d} steps {rows[-1]['env_steps']:>10,d} wall {wall / 60:6.1f} min | "
@@ -69,6 +79,38 @@ def main(argv: list[str]) -> int:
         best = min(rows, key=lambda r: r["fall_down_pct"])
         print(f"[curve] never reached {args.target:g}%: best {best['fall_down_pct']:.1f}% at {best['env_steps']:,d} steps")
     return 0
+
+
+def _wall_from_file_times(ckpts: list[Path], start: float) -> dict[Path, float]:
+    """Training seconds at each checkpoint from file modification times, for checkpoints that
+    do not record them (an estimate; a checkpoint's own record is exact). The gaps between
+    consecutive checkpoints count, except that a gap over 3x the run's median seconds per
+    iteration times the iterations between them (the pause between two sessions of a resumed
+    run) counts at the median rate. The first checkpoint counts from `start` when that is earlier (a
+    resumed run rewrites config.json), else at the median rate."""
+    if len(ckpts) < 2:
+        return {}
+    times = np.array([os.path.getmtime(c / checkpoint.FILE) for c in ckpts])
+    iters = np.array([int(c.name) for c in ckpts], dtype=float)
+    gaps, steps = np.diff(times), np.maximum(np.diff(iters), 1.0)
+    per_iteration = float(np.median(gaps / steps))
+    first = times[0] - start if start and 0 < times[0] - start else per_iteration * iters[0]
+    expected = per_iteration * steps
+    wall = np.concatenate([[first], np.where(gaps > 3.0 * expected, expected, gaps)]).cumsum()
+    return dict(zip(ckpts, wall.tolist()))
+
+
+def _earlier_rows(path: Path, args) -> dict[int, dict]:
+    """Iteration -> row of an earlier curve.json made with the same shapes, episode and seed."""
+    if not path.exists():
+        return {}
+    try:
+        earlier = json.loads(path.read_text())
+        same = all(earlier.get(k) == getattr(args, k) for k in ("shapes", "episode_s", "seed"))
+        return {int(r["iteration"]): r for r in earlier["rows"]} if same else {}
+    except (ValueError, KeyError, TypeError) as exc:
+        print(f"[curve] ignoring unreadable {path}: {exc}")
+        return {}
 
 
 def _plot(rows: list[dict], path: Path, args) -> None:

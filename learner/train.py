@@ -184,12 +184,16 @@ def train(cfg: RunConfig, on_iteration: Callable[[Run, dict[str, float]], None] 
     try:
         learner = run.learner
         start_steps, start_time = learner.env_steps, time.monotonic()
+        last = start_time
         while learner.env_steps < cfg.total_env_steps and not run.stop:
             if cfg.max_iterations and learner.iteration >= cfg.max_iterations:
                 break
             metrics = _iterate(run, start_steps, start_time)
             if metrics is None:
                 break
+            now = time.monotonic()
+            learner.train_seconds += now - last
+            last = now
             if on_iteration is not None:
                 on_iteration(run, metrics)
             if learner.iteration % cfg.checkpoint_every == 0:

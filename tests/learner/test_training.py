@@ -74,6 +74,8 @@ def test_resume_continues_counters_and_sampler(tmp_path):
     log = (tmp_path / "reach-tiny" / "log.txt").read_text()
     assert "resumed" in log and "iter     3" in log
     assert int(second["sampler"]["meta"]["last_tick"]) == 4  # the sampler state came back and kept ticking
+    # Training time adds up over sessions (the learning curve's wall time).
+    assert 0 < first["train_seconds"] < second["train_seconds"]
 
 
 def test_resume_never_refuses_to_overwrite(tmp_path):

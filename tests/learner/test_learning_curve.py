@@ -1,0 +1,45 @@
+"""The learning curve's bookkeeping: wall time of old checkpoints and reuse of earlier rows."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+
+import pytest
+
+from learner import checkpoint
+from learner.learning_curve import _earlier_rows, _wall_from_file_times
+
+
+def _fake_checkpoints(tmp_path, stamps: dict[int, float]):
+    out = []
+    for iteration, t in stamps.items():
+        d = tmp_path / f"{iteration:08d}"
+        d.mkdir()
+        (d / checkpoint.FILE).write_bytes(b"")
+        os.utime(d / checkpoint.FILE, (t, t))
+        out.append(d)
+    return out
+
+
+def test_wall_time_from_file_times_leaves_out_the_pause_between_sessions(tmp_path):
+    """10 s per iteration, a checkpoint every 10; a 2-hour pause between iterations 30 and 40;
+    config.json rewritten by the resume (later than the first checkpoint)."""
+    t0 = 1_000_000.0
+    ckpts = _fake_checkpoints(tmp_path, {10: t0 + 100, 20: t0 + 200, 30: t0 + 300, 40: t0 + 7500, 50: t0 + 7600})
+    wall = _wall_from_file_times(ckpts, start=t0)
+    assert [wall[c] for c in ckpts] == pytest.approx([100, 200, 300, 400, 500])
+    resumed = _wall_from_file_times(ckpts, start=t0 + 7300)
+    assert [resumed[c] for c in ckpts] == pytest.approx([100, 200, 300, 400, 500])
+
+
+def test_earlier_rows_are_reused_only_for_the_same_protocol(tmp_path):
+    path = tmp_path / "curve.json"
+    rows = [{"iteration": 10, "fall_down_pct": 90.0}]
+    path.write_text(json.dumps({"shapes": 100, "episode_s": 10.0, "seed": 2019, "rows": rows}))
+    same = argparse.Namespace(shapes=100, episode_s=10.0, seed=2019)
+    assert _earlier_rows(path, same) == {10: rows[0]}
+    assert _earlier_rows(path, argparse.Namespace(shapes=300, episode_s=10.0, seed=2019)) == {}
+    path.write_text("{not json")
+    assert _earlier_rows(path, same) == {}
