@@ -55,7 +55,10 @@ def main(argv: list[str] | None = None) -> int:
     unknown = [t for t in tasks if t not in SHAPE_TASKS]
     if unknown:
         parser.error(f"unknown task(s) {unknown}; choose from {', '.join(SHAPE_TASKS)}")
-    lengths = [int(x) for x in args.lengths.split(",")]
+    try:
+        lengths = [int(x) for x in args.lengths.split(",")]
+    except ValueError:
+        lengths = []
     if len(lengths) != 2 or min(lengths) < 1:
         parser.error(f"--lengths {args.lengths!r}: give two positive episode lengths, e.g. 40,900")
     header = (f"{'task':<12} {'reset (new shape)':>17} {'control step':>12} {'reset/step':>10} "
