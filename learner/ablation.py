@@ -7,9 +7,10 @@ comparison table over several checkpoints, every one evaluated on the same shape
 Rows: with vs without reward normalization; adaptive (k > 0) vs uniform (k = 0) sampling,
 compared by the uniformity of the measured return map (min/mean over the grid of two shape
 parameters) and the fall-down % on the most extreme 10% of shapes; trained without shape
-variation. Each checkpoint is evaluated by `morphmimic evaluate` into `<out>/<run name>/`
-(an existing `results.json` there with the same protocol is reused); the table goes to
-`<out>/ablation.md` and `<out>/ablation.json` and is printed.
+variation. Each checkpoint is evaluated by `morphmimic evaluate` into `<out>/<run name>/`, or
+`<run name>-<iteration>/` when several checkpoints of one run are compared (an existing
+`results.json` there with the same protocol is reused); the table goes to `<out>/ablation.md`
+and `<out>/ablation.json` and is printed.
 """
 
 from __future__ import annotations
@@ -32,9 +33,10 @@ def describe(cfg) -> str:
     return ", ".join(parts)
 
 
-def evaluate_one(ckpt: str, out: Path, args: argparse.Namespace) -> dict:
+def evaluate_one(ckpt: str, out: Path, args: argparse.Namespace, folder: str = "") -> dict:
+    """Evaluate one checkpoint into `<out>/<folder>` (default: its run name)."""
     loaded = eval_core.load(ckpt)
-    target = out / loaded.name
+    target = out / (folder or loaded.name)
     res_file = target / "results.json"
     if res_file.exists():
         old = json.loads(res_file.read_text())
@@ -51,6 +53,14 @@ def evaluate_one(ckpt: str, out: Path, args: argparse.Namespace) -> dict:
         argv += ["--map-params", *args.map_params]
     evaluate.main(argv)
     return {"loaded": loaded, **json.loads(res_file.read_text())}
+
+
+def _folders(checkpoints: list[str]) -> list[str]:
+    """Output folder per checkpoint: its run name, or `<run name>-<iteration>` when several
+    checkpoints of one run are compared (so one does not overwrite another's results)."""
+    loaded = [eval_core.load(c) for c in checkpoints]
+    names = [x.name for x in loaded]
+    return [f"{x.name}-{int(x.state['iteration'])}" if names.count(x.name) > 1 else x.name for x in loaded]
 
 
 def table(rows: list[dict]) -> str:
@@ -79,7 +89,7 @@ def main(argv: list[str]) -> int:
     args = p.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    rows = [evaluate_one(c, out, args) for c in args.checkpoints]
+    rows = [evaluate_one(c, out, args, folder) for c, folder in zip(args.checkpoints, _folders(args.checkpoints))]
     tasks = {r["loaded"].cfg.task.name for r in rows}
     text = "\n".join([
         f"# Ablations ({', '.join(sorted(tasks))})", "",

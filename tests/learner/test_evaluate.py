@@ -71,6 +71,20 @@ def test_ablation_table_has_one_row_per_checkpoint(tmp_path: Path) -> None:
     assert len(json.loads((out / "ablation.json").read_text())) == 2
 
 
+def test_ablation_keeps_two_checkpoints_of_one_run_apart(tmp_path: Path) -> None:
+    from learner import ablation, eval_core
+    from learner.learner import Learner
+
+    first = _tiny_checkpoint(tmp_path, "run")
+    state = Learner(eval_core.load(first).cfg).state_dict()
+    state["iteration"] = 5
+    second = checkpoint.save(tmp_path / "run" / "ckpt", 5, state, keep=2)
+    out = tmp_path / "abl"
+    argv = ["--checkpoints", str(first), str(second), "--shapes", "2", "--episode-s", "0.3", "--out", str(out)]
+    assert ablation.main(argv) == 0
+    assert (out / "run-0" / "results.json").exists() and (out / "run-5" / "results.json").exists()
+
+
 def test_morph_demo_changes_the_body_during_the_episode(tmp_path: Path) -> None:
     from learner import eval_core, morph_demo
 
