@@ -30,6 +30,8 @@ def describe(cfg) -> str:
     parts.append("reward norm" if getattr(t, "reward_normalization", True) else "no reward norm")
     if not getattr(t, "vary_shape", True):
         parts = ["base shape only"] + parts[1:]
+    elif getattr(t, "shape_box_scale", 1.0) != 1.0:
+        parts.append(f"shape box x{t.shape_box_scale:g}")
     return ", ".join(parts)
 
 

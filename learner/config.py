@@ -87,6 +87,8 @@ class RunConfig:
             raise ValueError(f"--ppo.kl-stop = {self.ppo.kl_stop} must be >= 0 (0 turns it off)")
         if self.policy.log_std_anneal_steps < 0:
             raise ValueError(f"--policy.log-std-anneal-steps = {self.policy.log_std_anneal_steps} must be >= 0")
+        if not 0.0 < self.task.shape_box_scale <= 1.0:
+            raise ValueError(f"--task.shape-box-scale = {self.task.shape_box_scale} must be in (0, 1] (1: the whole box)")
         self.task.substeps  # noqa: B018 - validates sim_hz / control_hz
 
     @property

@@ -67,10 +67,10 @@ def load(path: str | Path) -> Loaded:
 
 def eval_task(cfg: TaskConfig, episode_s: float) -> TaskConfig:
     """The task as evaluated: every shape of the parameterization (even for a checkpoint trained
-    on one shape), a fixed start at phase 0, the given horizon."""
+    on one shape or a shrunken box), a fixed start at phase 0, the given horizon."""
     extra = {}
     if "vary_shape" in {f.name for f in dataclasses.fields(cfg)}:
-        extra = {"vary_shape": True, "random_start_phase": False}
+        extra = {"vary_shape": True, "shape_box_scale": 1.0, "random_start_phase": False}
     return dataclasses.replace(cfg, episode_s=episode_s, **extra)
 
 

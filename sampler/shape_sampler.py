@@ -209,10 +209,14 @@ class ShapeSampler:
             raise ValueError(f"sampler state is for parameters {meta['names']}, "
                              f"this sampler has {list(self.space.names)}")
         self.vm.load_state(meta["vm"], {k[3:]: v for k, v in arrays.items() if k.startswith("vm/")})
-        self.buffer = arrays["buffer"].astype(np.float64).reshape(-1, self.space.dim)
+        # NOTE: a run may resume on another box (a curriculum stage, `--task.shape-box-scale`):
+        # its buffered and pending shapes are moved into this one (Vm, fitted on box-normalized
+        # inputs, re-fits to the new box as pairs arrive).
+        box = lambda a: np.clip(a.astype(np.float64).reshape(-1, self.space.dim), self.space.low_array, self.space.high_array)  # noqa: E731
+        self.buffer = box(arrays["buffer"])
         self._order = arrays["order"].astype(np.int64)
         pending_v = arrays["pending_values"].astype(np.float64).reshape(-1)
-        pending_p = arrays["pending_params"].astype(np.float64).reshape(-1, self.space.dim)
+        pending_p = box(arrays["pending_params"])
         self._pending_params = [pending_p] if len(pending_v) else []
         self._pending_values = [pending_v] if len(pending_v) else []
         self._cursor = int(meta["cursor"])

@@ -37,6 +37,10 @@ class TaskConfig:
     vary_shape: bool = True
     """Shape tasks: False pins the shape to the base character (the no-variation ablation); the
     observation keeps the shape parameters so the policy evaluates on any shape."""
+    shape_box_scale: float = 1.0
+    """Shape tasks: train on the shape box shrunk toward the base shape by this factor in (0, 1]
+    (each bound moves to base + scale * (bound - base)); a curriculum is a run resumed at
+    growing scales (0.25, 0.5, 1). Evaluation always uses the whole box."""
     reward_normalization: bool = True
     """Shape tasks: Won & Lee 2019 reward normalization (METHOD.md A, a reconstruction) on/off."""
     task_params: tuple[str, ...] = ()

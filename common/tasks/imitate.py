@@ -68,6 +68,11 @@ class ImitateEnv:
         names, low, high, doc = list(shape.names), list(shape.low), list(shape.high), [p.doc for p in shape.params]
         if not cfg.vary_shape:
             low, high = list(shape.default), list(shape.default)
+        elif cfg.shape_box_scale != 1.0:
+            if not 0.0 < cfg.shape_box_scale <= 1.0:
+                raise ValueError(f"shape_box_scale = {cfg.shape_box_scale} must be in (0, 1]")
+            d, k = np.asarray(shape.default), cfg.shape_box_scale
+            low, high = list(d + k * (np.asarray(low) - d)), list(d + k * (np.asarray(high) - d))
         ranges = {"speed": cfg.speed_range, "heading": cfg.heading_range_rad}
         for name in cfg.task_params:
             if name not in TASK_PARAMS:

@@ -52,6 +52,9 @@ def test_same_seed_gives_the_same_shapes(tmp_path: Path) -> None:
 
     space = task_space(eval_core.eval_task(loaded.cfg.task, 1.0))
     np.testing.assert_array_equal(eval_core.eval_shapes(space, 5, 7), eval_core.eval_shapes(space, 5, 7))
+    # A checkpoint trained on a shrunken box (a curriculum stage) is evaluated on the whole box.
+    shrunk = dataclasses.replace(loaded.cfg.task, shape_box_scale=0.25)
+    np.testing.assert_array_equal(task_space(eval_core.eval_task(shrunk, 1.0)).low_array, space.low_array)
     ext = eval_core.extremeness(space, np.stack([space.default_array, space.low_array]))
     assert ext[0] < ext[1]
 

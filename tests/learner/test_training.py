@@ -178,3 +178,7 @@ def test_bad_ppo_and_variance_options_name_the_value():
         RunConfig(ppo=PPOConfig(kl_stop=-0.1))
     with pytest.raises(ValueError, match=r"--policy.log-std-anneal-steps = -5 must be >= 0"):
         RunConfig(policy=PolicyConfig(log_std_anneal_steps=-5))
+    from common.tasks.base import TaskConfig
+
+    with pytest.raises(ValueError, match=r"--task.shape-box-scale = 0.0 must be in \(0, 1\]"):
+        RunConfig(task=TaskConfig(shape_box_scale=0.0))

@@ -129,3 +129,18 @@ def test_state_of_another_space_is_refused():
     other = ParamSpace(names=("height", "thickness"), low=(0.75, 0.5), high=(1.5, 1.5))
     with pytest.raises(ValueError, match=r"parameters \['leg', 'arm'\].*\['height', 'thickness'\]"):
         ShapeSampler(FAST, other).load_state_dict(a.state_dict())
+
+
+def test_state_resumed_on_a_wider_or_narrower_box_keeps_its_shapes_inside_the_box():
+    """A shape curriculum resumes a run with `--task.shape-box-scale` changed."""
+    wide = ShapeSampler(FAST, SPACE)
+    run(wide, range(1, 4))
+    narrow_space = ParamSpace(names=SPACE.names, low=(0.9, 0.9), high=(1.1, 1.1))
+    narrow = ShapeSampler(FAST, narrow_space)
+    narrow.load_state_dict(wide.state_dict())
+    p, _ = narrow.draw(600)
+    assert np.all(p >= narrow_space.low_array) and np.all(p <= narrow_space.high_array)
+    back = ShapeSampler(FAST, SPACE)
+    back.load_state_dict(narrow.state_dict())
+    run(back, range(4, 6))  # refills over the whole box again
+    assert back.buffer[:, 0].min() < 0.9 < 1.1 < back.buffer[:, 0].max()

@@ -77,6 +77,19 @@ def test_fixed_shape_space_is_the_base_shape() -> None:
     assert env.obs_dim == make_env(CFG, seed=0).obs_dim
 
 
+def test_shape_box_scale_shrinks_the_box_toward_the_base_shape() -> None:
+    from common.tasks.imitate import ImitateEnv
+
+    full = ImitateEnv.param_space(CFG)
+    half = ImitateEnv.param_space(dataclasses.replace(CFG, shape_box_scale=0.5))
+    d = full.default_array
+    np.testing.assert_allclose(half.low_array, d + 0.5 * (full.low_array - d))
+    np.testing.assert_allclose(half.high_array, d + 0.5 * (full.high_array - d))
+    np.testing.assert_array_equal(half.default_array, d)
+    with pytest.raises(ValueError, match="shape_box_scale = 1.5 must be in"):
+        ImitateEnv.param_space(dataclasses.replace(CFG, shape_box_scale=1.5))
+
+
 def test_task_parameters_rotate_and_speed_up_the_reference() -> None:
     cfg = dataclasses.replace(CFG, task_params=("speed", "heading"))
     env = make_env(cfg, seed=0)
