@@ -79,9 +79,16 @@ class ObsNormalizer(nn.Module):
         self.var.copy_(m2 / total)
         self.count.copy_(total)
 
+    CONSTANT_VAR = 1e-10
+    """A dimension whose running variance is below this never varied in training."""
+
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        std = (self.var + self.eps).sqrt().to(x.dtype)
-        return ((x - self.mean.to(x.dtype)) / std).clamp(-self.clip, self.clip)
+        # NOTE: a dimension that never varied in training (the shape of a policy trained on one
+        # body, a state component that is constant by construction) is centred but not scaled:
+        # dividing by sqrt(eps) turned a 0.1 change of a shape parameter into +-10 (the clip),
+        # so a base-shape-only policy saw garbage on any other body.
+        std = torch.where(self.var > self.CONSTANT_VAR, (self.var + self.eps).sqrt(), torch.ones_like(self.var))
+        return ((x - self.mean.to(x.dtype)) / std.to(x.dtype)).clamp(-self.clip, self.clip)
 
 
 class GaussianPolicy(nn.Module):

@@ -72,6 +72,18 @@ def test_normalizer_matches_numpy_over_several_batches():
     np.testing.assert_allclose(norm.var.numpy(), all_.var(0), rtol=1e-10)
 
 
+def test_normalizer_centres_but_does_not_amplify_a_dimension_that_never_varied():
+    """A policy trained on one body sees its shape parameters constant; on another body they
+    must arrive as small centred inputs, not as +-clip."""
+    rng = np.random.default_rng(3)
+    train = np.column_stack([rng.normal(0.0, 2.0, 500), np.full(500, 1.0)])
+    norm = ObsNormalizer(2)
+    norm.update(torch.as_tensor(train))
+    out = norm(torch.tensor([[2.0, 1.1], [0.0, 1.0]], dtype=torch.float64))
+    torch.testing.assert_close(out[:, 1], torch.tensor([0.1, 0.0], dtype=torch.float64))
+    assert abs(out[0, 0].item() - (2.0 - norm.mean[0].item()) / np.sqrt(norm.var[0].item())) < 1e-6
+
+
 def test_update_reduces_loss_on_a_fixed_batch_and_skips_nan():
     torch.manual_seed(0)
     cfg = PolicyConfig(hidden=(16, 16))
