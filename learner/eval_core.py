@@ -65,12 +65,16 @@ def load(path: str | Path) -> Loaded:
     return Loaded(RunConfig.from_json(state["config"]), state, file)
 
 
-def eval_task(cfg: TaskConfig, episode_s: float) -> TaskConfig:
+def eval_task(cfg: TaskConfig, episode_s: float, box_scale: float = 1.0) -> TaskConfig:
     """The task as evaluated: every shape of the parameterization (even for a checkpoint trained
-    on one shape or a shrunken box), a fixed start at phase 0, the given horizon."""
+    on one shape or a shrunken box), a fixed start at phase 0, the given horizon. `box_scale` < 1
+    evaluates on the box shrunk toward the base shape instead (a curriculum's progress; not the
+    paper's protocol)."""
+    if not 0.0 < box_scale <= 1.0:
+        raise ValueError(f"box scale {box_scale} must be in (0, 1] (1: the whole box, the paper's protocol)")
     extra = {}
     if "vary_shape" in {f.name for f in dataclasses.fields(cfg)}:
-        extra = {"vary_shape": True, "shape_box_scale": 1.0, "random_start_phase": False}
+        extra = {"vary_shape": True, "shape_box_scale": box_scale, "random_start_phase": False}
     return dataclasses.replace(cfg, episode_s=episode_s, **extra)
 
 
@@ -126,10 +130,10 @@ def run_episode(env, policy: GaussianPolicy, params: np.ndarray, seed: int,
 _WORKER: dict[str, Any] = {}
 
 
-def _init_worker(state_file: str, task_json: dict, episode_s: float) -> None:
+def _init_worker(state_file: str, task_json: dict, episode_s: float, box_scale: float) -> None:
     torch.set_num_threads(1)
     loaded = load(state_file)
-    task = eval_task(dataclasses.replace(loaded.cfg.task, **task_json), episode_s)
+    task = eval_task(dataclasses.replace(loaded.cfg.task, **task_json), episode_s, box_scale)
     env = make_env(task, seed=0)
     _WORKER.update(env=env, policy=make_policy(loaded, env.obs_dim, env.act_dim))
 
@@ -141,10 +145,12 @@ def _work(job: tuple[int, np.ndarray, int]) -> dict[str, Any]:
 
 
 def evaluate(loaded: Loaded, shapes: np.ndarray, episode_s: float, seed: int, workers: int = 1,
-             progress: Callable[[int, int], None] | None = None, task_overrides: dict | None = None) -> list[dict]:
-    """Run one episode per row of `shapes`; results in row order. `workers` > 1 uses processes."""
+             progress: Callable[[int, int], None] | None = None, task_overrides: dict | None = None,
+             box_scale: float = 1.0) -> list[dict]:
+    """Run one episode per row of `shapes` (inside the box `eval_task(..., box_scale)` accepts);
+    results in row order. `workers` > 1 uses processes."""
     jobs = [(i, shapes[i], seed + i) for i in range(len(shapes))]
-    init = (str(loaded.path), dict(task_overrides or {}), episode_s)
+    init = (str(loaded.path), dict(task_overrides or {}), episode_s, box_scale)
     results: list[dict] = []
     if workers <= 1:
         _init_worker(*init)

@@ -38,6 +38,9 @@ def parse(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--seed", type=int, default=2019, help="seed of the shape draws (fixed: every checkpoint sees the same shapes)")
     p.add_argument("--episode-s", type=float, default=30.0, help="episode length in simulated seconds (paper: 30)")
     p.add_argument("--workers", type=int, default=1, help="processes running episodes")
+    p.add_argument("--box-scale", type=float, default=1.0,
+                   help="draw the shapes from the box shrunk toward the base shape by this factor, as "
+                        "--task.shape-box-scale does in training (a curriculum's progress); 1: the paper's protocol")
     p.add_argument("--out", default="", help="output directory (default: <checkpoint dir>/eval)")
     p.add_argument("--map-params", nargs=2, default=None, metavar=("X", "Y"),
                    help="two shape parameters of the maps (default: the run's sampler.plot_params)")
@@ -49,10 +52,10 @@ def parse(argv: list[str]) -> argparse.Namespace:
 
 
 def render_episode(loaded: eval_core.Loaded, params: np.ndarray, seed: int, episode_s: float, out: Path, stem: str,
-                   gif: bool) -> list[str]:
+                   gif: bool, box_scale: float = 1.0) -> list[str]:
     from common.tasks.registry import make_env
 
-    env = make_env(eval_core.eval_task(loaded.cfg.task, episode_s), seed=0)
+    env = make_env(eval_core.eval_task(loaded.cfg.task, episode_s, box_scale), seed=0)
     policy = eval_core.make_policy(loaded, env.obs_dim, env.act_dim)
     rec = eval_plots.Recorder(every=3 if gif else 6)
     eval_core.run_episode(env, policy, params, seed, on_step=rec)
@@ -71,7 +74,9 @@ def markdown(name: str, summary: dict, args: argparse.Namespace, files: list[str
         f"Checkpoint `{loaded.path}` (iteration {loaded.state.get('iteration')}, "
         f"{int(loaded.state.get('env_steps', 0)):,d} env steps); task `{loaded.cfg.task.name}`, "
         f"parameterization `{getattr(loaded.cfg.task, 'parameterization', '-')}`.",
-        f"Protocol: {s['shapes']} random shapes (seed {args.seed}), {args.episode_s:g} s episodes, mean action.", "",
+        f"Protocol: {s['shapes']} random shapes (seed {args.seed}), {args.episode_s:g} s episodes, mean action."
+        + ("" if args.box_scale == 1.0 else f" Shapes from the box shrunk x{args.box_scale:g} toward the base shape "
+           "(not the paper's protocol, which uses the whole box)."), "",
         "| metric | value |", "|---|---|",
         f"| task achievement (mean cumulative R_task) | {s['task_achievement']:.1f} |",
         f"| fall-down % | {s['fall_down_pct']:.1f} |",
@@ -95,10 +100,12 @@ def main(argv: list[str]) -> int:
         return morph_demo.main(["--checkpoint", args.checkpoint] + (["--out", args.out] if args.out else []))
     if args.shapes < 1 or args.episode_s <= 0:
         raise SystemExit(f"--shapes {args.shapes} must be >= 1 and --episode-s {args.episode_s} > 0")
+    if not 0.0 < args.box_scale <= 1.0:
+        raise SystemExit(f"--box-scale {args.box_scale} must be in (0, 1] (1: the whole box, the paper's protocol)")
     loaded = eval_core.load(args.checkpoint)
     from common.tasks.registry import make_env, task_space
 
-    task = eval_core.eval_task(loaded.cfg.task, args.episode_s)
+    task = eval_core.eval_task(loaded.cfg.task, args.episode_s, args.box_scale)
     env = make_env(task, seed=0)
     space = env.space
     n_shape = getattr(env, "n_shape", space.dim)
@@ -114,7 +121,8 @@ def main(argv: list[str]) -> int:
             last[0] = time.monotonic()
             print(f"[evaluate] {done}/{total} shapes, {time.monotonic() - t0:.0f} s", flush=True)
 
-    results = eval_core.evaluate(loaded, shapes, args.episode_s, args.seed, args.workers, progress)
+    results = eval_core.evaluate(loaded, shapes, args.episode_s, args.seed, args.workers, progress,
+                                 box_scale=args.box_scale)
     summary = eval_core.summarize(results, space, n_shape)
     summary["wall_s"] = time.monotonic() - t0
     params = np.array([r["params"] for r in results])
@@ -139,15 +147,18 @@ def main(argv: list[str]) -> int:
     if not args.no_render:
         order = sorted(results, key=lambda r: r["return"])
         for stem, r in (("best", order[-1]), ("worst", order[0])):
-            files += render_episode(loaded, np.array(r["params"]), args.seed + r["index"], args.episode_s, out, stem, args.gif)
+            files += render_episode(loaded, np.array(r["params"]), args.seed + r["index"], args.episode_s, out, stem, args.gif,
+                                    args.box_scale)
     meta = {"checkpoint": str(loaded.path), "name": loaded.name, "iteration": int(loaded.state.get("iteration", 0)),
             "env_steps": int(loaded.state.get("env_steps", 0)), "seed": args.seed, "episode_s": args.episode_s,
+            "box_scale": args.box_scale,
             "param_names": list(space.names), "map_params": names}
     (out / "results.json").write_text(json.dumps({"meta": meta, "summary": summary, "shapes": results}, indent=1) + "\n")
     files.insert(0, str(out / "results.json"))
     (out / "summary.md").write_text(markdown(loaded.name, summary, args, files + [str(out / "summary.md")], loaded))
     print(f"[evaluate] {loaded.name}: task achievement {summary['task_achievement']:.1f}, fall-down "
-          f"{summary['fall_down_pct']:.1f}% ({summary['shapes']} shapes, {args.episode_s:g} s), extreme-10% fall-down "
+          f"{summary['fall_down_pct']:.1f}% ({summary['shapes']} shapes"
+          f"{'' if args.box_scale == 1.0 else f' in the box x{args.box_scale:g}'}, {args.episode_s:g} s), extreme-10% fall-down "
           f"{summary['fall_down_pct_extreme10']:.1f}%, mean return {summary['mean_return']:.1f}, "
           f"return-map min/mean {summary['return_map_uniformity']:.2f}; wrote {out}")
     return 0

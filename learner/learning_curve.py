@@ -36,11 +36,15 @@ def main(argv: list[str]) -> int:
     p.add_argument("--shapes", type=int, default=100)
     p.add_argument("--episode-s", type=float, default=10.0)
     p.add_argument("--seed", type=int, default=2019)
+    p.add_argument("--box-scale", type=float, default=1.0,
+                   help="shapes from the box shrunk toward the base shape (a curriculum's progress); 1: the whole box")
     p.add_argument("--every", type=int, default=1, help="evaluate every n-th checkpoint (the last always)")
     p.add_argument("--workers", type=int, default=1)
     p.add_argument("--target", type=float, default=20.0, help="fall-down %% to report reaching")
     p.add_argument("--out", default="", help="output directory (default: <ckpt-dir>/../curve)")
     args = p.parse_args(argv)
+    if not 0.0 < args.box_scale <= 1.0:
+        raise SystemExit(f"--box-scale {args.box_scale} must be in (0, 1] (1: the whole box)")
     ckpts = checkpoint.list_checkpoints(Path(args.ckpt_dir))
     if not ckpts:
         raise SystemExit(f"--ckpt-dir {args.ckpt_dir}: no checkpoints")
@@ -57,9 +61,9 @@ def main(argv: list[str]) -> int:
             continue
         from common.tasks.registry import make_env
 
-        env = make_env(eval_core.eval_task(loaded.cfg.task, args.episode_s), seed=0)
+        env = make_env(eval_core.eval_task(loaded.cfg.task, args.episode_s, args.box_scale), seed=0)
         shapes = eval_core.eval_shapes(env.space, args.shapes, args.seed)
-        res = eval_core.evaluate(loaded, shapes, args.episode_s, args.seed, args.workers)
+        res = eval_core.evaluate(loaded, shapes, args.episode_s, args.seed, args.workers, box_scale=args.box_scale)
         s = eval_core.summarize(res, env.space, getattr(env, "n_shape", env.space.dim))
         wall = float(loaded.state.get("train_seconds", float("nan")))
         if not np.isfinite(wall):
@@ -70,7 +74,7 @@ def main(argv: list[str]) -> int:
               f"fall-down {s['fall_down_pct']:5.1f}% task {s['task_achievement']:6.1f} length {s['mean_seconds']:5.2f} s",
               flush=True)
     (out / "curve.json").write_text(json.dumps({"shapes": args.shapes, "episode_s": args.episode_s, "seed": args.seed,
-                                                "rows": rows}, indent=1) + "\n")
+                                                "box_scale": args.box_scale, "rows": rows}, indent=1) + "\n")
     _plot(rows, out / "curve.png", args)
     hit = next((r for r in rows if r["fall_down_pct"] <= args.target), None)
     if hit:
@@ -101,12 +105,13 @@ def _wall_from_file_times(ckpts: list[Path], start: float) -> dict[Path, float]:
 
 
 def _earlier_rows(path: Path, args) -> dict[int, dict]:
-    """Iteration -> row of an earlier curve.json made with the same shapes, episode and seed."""
+    """Iteration -> row of an earlier curve.json made with the same shapes, episode, seed and box."""
     if not path.exists():
         return {}
     try:
         earlier = json.loads(path.read_text())
-        same = all(earlier.get(k) == getattr(args, k) for k in ("shapes", "episode_s", "seed"))
+        same = all(earlier.get(k, 1.0 if k == "box_scale" else None) == getattr(args, k)
+                   for k in ("shapes", "episode_s", "seed", "box_scale"))
         return {int(r["iteration"]): r for r in earlier["rows"]} if same else {}
     except (ValueError, KeyError, TypeError) as exc:
         print(f"[curve] ignoring unreadable {path}: {exc}")
@@ -127,7 +132,8 @@ def _plot(rows: list[dict], path: Path, args) -> None:
     ax.set_xlabel("environment steps (M)")
     ax.set_ylabel("%")
     ax.set_ylim(0, 100)
-    ax.set_title(f"{args.shapes} random shapes, {args.episode_s:g} s episodes", fontsize=9)
+    box = "" if args.box_scale == 1.0 else f" (box x{args.box_scale:g})"
+    ax.set_title(f"{args.shapes} random shapes{box}, {args.episode_s:g} s episodes", fontsize=9)
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path)

@@ -59,6 +59,26 @@ def test_same_seed_gives_the_same_shapes(tmp_path: Path) -> None:
     assert ext[0] < ext[1]
 
 
+def test_evaluate_box_scale_draws_shapes_from_the_shrunk_box(tmp_path: Path, capsys) -> None:
+    from common.tasks.registry import task_space
+    from learner import eval_core, evaluate
+
+    _tiny_checkpoint(tmp_path, "tiny")
+    out = tmp_path / "eval"
+    argv = ["--checkpoint", str(tmp_path / "tiny"), "--shapes", "4", "--episode-s", "0.3", "--no-render", "--out", str(out)]
+    assert evaluate.main(argv + ["--box-scale", "0.25"]) == 0
+    assert "in the box x0.25" in capsys.readouterr().out
+    res = json.loads((out / "results.json").read_text())
+    assert res["meta"]["box_scale"] == 0.25 and "shrunk x0.25" in (out / "summary.md").read_text()
+    full = task_space(eval_core.eval_task(eval_core.load(tmp_path / "tiny").cfg.task, 1.0))
+    base, lo, hi = full.default_array, full.low_array, full.high_array
+    params = np.array([r["params"] for r in res["shapes"]])
+    assert np.all(params >= base + 0.25 * (lo - base) - 1e-12) and np.all(params <= base + 0.25 * (hi - base) + 1e-12)
+    assert np.any(np.abs(params - base) > 1e-3)  # drawn, not the base shape every time
+    with pytest.raises(SystemExit, match="--box-scale 1.5 must be in"):
+        evaluate.main(argv + ["--box-scale", "1.5"])
+
+
 def test_ablation_table_has_one_row_per_checkpoint(tmp_path: Path) -> None:
     from learner import ablation
 

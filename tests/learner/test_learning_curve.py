@@ -38,8 +38,9 @@ def test_earlier_rows_are_reused_only_for_the_same_protocol(tmp_path):
     path = tmp_path / "curve.json"
     rows = [{"iteration": 10, "fall_down_pct": 90.0}]
     path.write_text(json.dumps({"shapes": 100, "episode_s": 10.0, "seed": 2019, "rows": rows}))
-    same = argparse.Namespace(shapes=100, episode_s=10.0, seed=2019)
-    assert _earlier_rows(path, same) == {10: rows[0]}
-    assert _earlier_rows(path, argparse.Namespace(shapes=300, episode_s=10.0, seed=2019)) == {}
+    same = argparse.Namespace(shapes=100, episode_s=10.0, seed=2019, box_scale=1.0)
+    assert _earlier_rows(path, same) == {10: rows[0]}  # a curve.json from before --box-scale: the whole box
+    assert _earlier_rows(path, argparse.Namespace(shapes=300, episode_s=10.0, seed=2019, box_scale=1.0)) == {}
+    assert _earlier_rows(path, argparse.Namespace(shapes=100, episode_s=10.0, seed=2019, box_scale=0.5)) == {}
     path.write_text("{not json")
     assert _earlier_rows(path, same) == {}
