@@ -117,6 +117,18 @@ def test_morph_demo_changes_the_body_during_the_episode(tmp_path: Path) -> None:
     assert result["morphs"] >= 5
 
 
+@pytest.mark.parametrize("name", sorted(p.name for p in PRETRAINED.iterdir() if (p / "state.pt").is_file()))
+def test_every_shipped_checkpoint_runs_with_this_code(name: str, tmp_path: Path) -> None:
+    """Each `learner/pretrained/<name>` loads, its policy fits the task as this code builds it
+    (observation and action sizes), and `morphmimic evaluate` runs on it."""
+    from learner import evaluate
+
+    out = tmp_path / name
+    assert evaluate.main(["--checkpoint", str(PRETRAINED / name), "--shapes", "2", "--episode-s", "0.3",
+                          "--no-render", "--out", str(out)]) == 0
+    assert len(json.loads((out / "results.json").read_text())["shapes"]) == 2
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["quadruped"])
 def test_shipped_controller_stays_up_through_a_moderate_morph(name: str) -> None:
