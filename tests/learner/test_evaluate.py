@@ -130,11 +130,11 @@ def test_every_shipped_checkpoint_runs_with_this_code(name: str, tmp_path: Path)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["quadruped"])
+@pytest.mark.parametrize("name", ["quadruped", "lower_biped-curriculum"])
 def test_shipped_controller_stays_up_through_a_moderate_morph(name: str) -> None:
-    """The shipped quadruped through the default schedule at half strength (height x1.2, x0.8,
-    width x1.2, back: 18 s, a rebuild every control step). Slow: about a minute. The shipped
-    lower_biped is not good enough yet (it falls within about 2 s even without a morph)."""
+    """A shipped controller through the default schedule at half strength (taller, shorter,
+    wider, back: 18 s, a rebuild every control step). Slow: about a minute each. The shipped
+    lower_biped is not good enough (it falls within about 2 s even without a morph)."""
     from learner import eval_core, morph_demo
 
     result = morph_demo.run_morph(eval_core.load(PRETRAINED / name), strength=0.5)
