@@ -65,13 +65,33 @@ def load(path: str | Path) -> Loaded:
     return Loaded(RunConfig.from_json(state["config"]), state, file)
 
 
+def check_box_scale(box_scale: float) -> float:
+    """`box_scale` if it is in (0, 1], else ValueError naming it and the range."""
+    if not 0.0 < box_scale <= 1.0:
+        raise ValueError(f"box scale {box_scale:g} must be in (0, 1] (1: the whole box, the paper's protocol)")
+    return box_scale
+
+
+def box_scale_arg(text: str) -> float:
+    """argparse `type=` of `--box-scale`: a float in (0, 1], else a usage error naming the value."""
+    import argparse
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number; the box scale must be in (0, 1]") from None
+    try:
+        return check_box_scale(value)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"{text!r}: {exc}") from None
+
+
 def eval_task(cfg: TaskConfig, episode_s: float, box_scale: float = 1.0) -> TaskConfig:
     """The task as evaluated: every shape of the parameterization (even for a checkpoint trained
     on one shape or a shrunken box), a fixed start at phase 0, the given horizon. `box_scale` < 1
     evaluates on the box shrunk toward the base shape instead (a curriculum's progress; not the
     paper's protocol)."""
-    if not 0.0 < box_scale <= 1.0:
-        raise ValueError(f"box scale {box_scale} must be in (0, 1] (1: the whole box, the paper's protocol)")
+    check_box_scale(box_scale)
     extra = {}
     if "vary_shape" in {f.name for f in dataclasses.fields(cfg)}:
         extra = {"vary_shape": True, "shape_box_scale": box_scale, "random_start_phase": False}

@@ -38,7 +38,7 @@ def parse(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--seed", type=int, default=2019, help="seed of the shape draws (fixed: every checkpoint sees the same shapes)")
     p.add_argument("--episode-s", type=float, default=30.0, help="episode length in simulated seconds (paper: 30)")
     p.add_argument("--workers", type=int, default=1, help="processes running episodes")
-    p.add_argument("--box-scale", type=float, default=1.0,
+    p.add_argument("--box-scale", type=eval_core.box_scale_arg, default=1.0,
                    help="draw the shapes from the box shrunk toward the base shape by this factor, as "
                         "--task.shape-box-scale does in training (a curriculum's progress); 1: the paper's protocol")
     p.add_argument("--out", default="", help="output directory (default: <checkpoint dir>/eval)")
@@ -100,8 +100,6 @@ def main(argv: list[str]) -> int:
         return morph_demo.main(["--checkpoint", args.checkpoint] + (["--out", args.out] if args.out else []))
     if args.shapes < 1 or args.episode_s <= 0:
         raise SystemExit(f"--shapes {args.shapes} must be >= 1 and --episode-s {args.episode_s} > 0")
-    if not 0.0 < args.box_scale <= 1.0:
-        raise SystemExit(f"--box-scale {args.box_scale} must be in (0, 1] (1: the whole box, the paper's protocol)")
     loaded = eval_core.load(args.checkpoint)
     from common.tasks.registry import make_env, task_space
 

@@ -36,15 +36,13 @@ def main(argv: list[str]) -> int:
     p.add_argument("--shapes", type=int, default=100)
     p.add_argument("--episode-s", type=float, default=10.0)
     p.add_argument("--seed", type=int, default=2019)
-    p.add_argument("--box-scale", type=float, default=1.0,
+    p.add_argument("--box-scale", type=eval_core.box_scale_arg, default=1.0,
                    help="shapes from the box shrunk toward the base shape (a curriculum's progress); 1: the whole box")
     p.add_argument("--every", type=int, default=1, help="evaluate every n-th checkpoint (the last always)")
     p.add_argument("--workers", type=int, default=1)
     p.add_argument("--target", type=float, default=20.0, help="fall-down %% to report reaching")
     p.add_argument("--out", default="", help="output directory (default: <ckpt-dir>/../curve)")
     args = p.parse_args(argv)
-    if not 0.0 < args.box_scale <= 1.0:
-        raise SystemExit(f"--box-scale {args.box_scale} must be in (0, 1] (1: the whole box)")
     ckpts = checkpoint.list_checkpoints(Path(args.ckpt_dir))
     if not ckpts:
         raise SystemExit(f"--ckpt-dir {args.ckpt_dir}: no checkpoints")
@@ -110,8 +108,8 @@ def _earlier_rows(path: Path, args) -> dict[int, dict]:
         return {}
     try:
         earlier = json.loads(path.read_text())
-        same = all(earlier.get(k, 1.0 if k == "box_scale" else None) == getattr(args, k)
-                   for k in ("shapes", "episode_s", "seed", "box_scale"))
+        earlier = {"box_scale": 1.0, **earlier}  # curves from before --box-scale used the whole box
+        same = all(earlier.get(k) == getattr(args, k) for k in ("shapes", "episode_s", "seed", "box_scale"))
         return {int(r["iteration"]): r for r in earlier["rows"]} if same else {}
     except (ValueError, KeyError, TypeError) as exc:
         print(f"[curve] ignoring unreadable {path}: {exc}")

@@ -75,8 +75,11 @@ def test_evaluate_box_scale_draws_shapes_from_the_shrunk_box(tmp_path: Path, cap
     params = np.array([r["params"] for r in res["shapes"]])
     assert np.all(params >= base + 0.25 * (lo - base) - 1e-12) and np.all(params <= base + 0.25 * (hi - base) + 1e-12)
     assert np.any(np.abs(params - base) > 1e-3)  # drawn, not the base shape every time
-    with pytest.raises(SystemExit, match="--box-scale 1.5 must be in"):
-        evaluate.main(argv + ["--box-scale", "1.5"])
+    for bad in ("1.5", "0", "half"):
+        with pytest.raises(SystemExit):
+            evaluate.main(argv + ["--box-scale", bad])
+        err = capsys.readouterr().err
+        assert f"argument --box-scale: '{bad}'" in err and "must be in (0, 1]" in err, err
 
 
 def test_ablation_table_has_one_row_per_checkpoint(tmp_path: Path) -> None:
