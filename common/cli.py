@@ -15,7 +15,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "ablation": ("learner.ablation", "compare checkpoints on the same shapes: the Won & Lee ablation table"),
     "character": ("common.characters.cli", "build a character from a preset and shape values; write MJCF and PNG"),
     "motion": ("common.motion.cli", "import, view and check motion clips"),
-    "bench": ("common.bench", "benchmarks: throughput | characters | sampler | soak"),
+    "bench": ("common.bench", "benchmarks: throughput | characters | episodes | sampler | soak"),
 }
 
 

@@ -3,7 +3,7 @@ reproduce") on one checkpoint.
 
     morphmimic evaluate --checkpoint learner/pretrained/lower_biped            # 300 shapes, 30 s
     morphmimic evaluate --checkpoint runs/lower_biped --shapes 20 --episode-s 5 --workers 2
-    morphmimic evaluate --checkpoint learner/pretrained/lower_biped --morph    # Figure 1 morph demo
+    morphmimic evaluate --checkpoint learner/pretrained/lower_biped --morph --strength 0.5  # Figure 1 morph demo
 
 Prints task achievement (mean cumulative task reward R_task) and the fall-down percentage, and
 writes into `--out` (default `<checkpoint dir>/eval`): `results.json` (summary + one record per
@@ -48,6 +48,8 @@ def parse(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--no-render", action="store_true", help="skip the best/worst strips")
     p.add_argument("--gif", action="store_true", help="also write GIFs of the best and worst shapes")
     p.add_argument("--morph", action="store_true", help="run the morph demo (learner.morph_demo) instead")
+    p.add_argument("--strength", type=float, default=None,
+                   help="with --morph: scale of the morph's deviation from the base shape (morph_demo's default: 1)")
     return p.parse_args(argv)
 
 
@@ -97,7 +99,11 @@ def main(argv: list[str]) -> int:
     if args.morph:
         from learner import morph_demo
 
-        return morph_demo.main(["--checkpoint", args.checkpoint] + (["--out", args.out] if args.out else []))
+        return morph_demo.main(["--checkpoint", args.checkpoint] + (["--out", args.out] if args.out else [])
+                               + ([] if args.strength is None else ["--strength", str(args.strength)])
+                               + (["--gif"] if args.gif else []))
+    if args.strength is not None:
+        raise SystemExit(f"--strength {args.strength} is a morph demo option: use it with --morph")
     if args.shapes < 1 or args.episode_s <= 0:
         raise SystemExit(f"--shapes {args.shapes} must be >= 1 and --episode-s {args.episode_s} > 0")
     loaded = eval_core.load(args.checkpoint)

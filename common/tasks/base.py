@@ -40,7 +40,7 @@ class TaskConfig:
     shape_box_scale: float = 1.0
     """Shape tasks: train on the shape box shrunk toward the base shape by this factor in (0, 1]
     (each bound moves to base + scale * (bound - base)); a curriculum is a run resumed at
-    growing scales (0.25, 0.5, 1). Evaluation always uses the whole box."""
+    growing scales (0.25, 0.5, 1). Evaluation uses the whole box unless given `--box-scale`."""
     reward_normalization: bool = True
     """Shape tasks: Won & Lee 2019 reward normalization (METHOD.md A, a reconstruction) on/off."""
     task_params: tuple[str, ...] = ()

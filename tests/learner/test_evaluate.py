@@ -120,6 +120,17 @@ def test_morph_demo_changes_the_body_during_the_episode(tmp_path: Path) -> None:
     assert result["morphs"] >= 5
 
 
+def test_evaluate_morph_forwards_the_strength_and_refuses_it_alone(tmp_path: Path) -> None:
+    from learner import evaluate
+
+    ckpt = _tiny_checkpoint(tmp_path, "tiny")
+    out = tmp_path / "morph"
+    assert evaluate.main(["--checkpoint", str(ckpt), "--morph", "--strength", "0.5", "--out", str(out)]) == 0
+    assert json.loads((out / "morph.json").read_text())["strength"] == 0.5
+    with pytest.raises(SystemExit, match="--strength 0.5 is a morph demo option"):
+        evaluate.main(["--checkpoint", str(ckpt), "--strength", "0.5", "--out", str(tmp_path / "e")])
+
+
 @pytest.mark.parametrize("name", sorted(p.name for p in PRETRAINED.iterdir() if (p / "state.pt").is_file()))
 def test_every_shipped_checkpoint_runs_with_this_code(name: str, tmp_path: Path) -> None:
     """Each `learner/pretrained/<name>` loads, its policy fits the task as this code builds it
