@@ -9,8 +9,9 @@ recorded fall back to the file's modification time minus `--start` (default: the
 time of the run's `config.json`, written when training starts; pass the run directory with
 `--run-dir`). Writes `curve.json` and `curve.png` into `--out` and prints a table with the
 first checkpoint below `--target` fall-down %. Rows of an earlier `curve.json` in `--out` made
-with the same shapes, episode length and seed are reused, so a growing run is evaluated only
-on its new checkpoints.
+with the same shapes, episode length, seed and box are reused, so a growing run is evaluated only
+on its new checkpoints, and kept when their checkpoints are gone (a run keeps only its newest
+`keep_checkpoints`): the curve is the run's history.
 """
 
 from __future__ import annotations
@@ -50,12 +51,12 @@ def main(argv: list[str]) -> int:
     start = args.start or (os.path.getmtime(Path(args.run_dir) / "config.json") if args.run_dir else 0.0)
     out = Path(args.out) if args.out else Path(args.ckpt_dir).parent / "curve"
     out.mkdir(parents=True, exist_ok=True)
-    rows, done = [], _earlier_rows(out / "curve.json", args)
+    done = _earlier_rows(out / "curve.json", args)
+    rows = dict(done)
     fallback_wall = _wall_from_file_times(checkpoint.list_checkpoints(Path(args.ckpt_dir)), start)
     for c in ckpts:
         loaded = eval_core.load(c)
         if int(loaded.state["iteration"]) in done:
-            rows.append(done[int(loaded.state["iteration"])])
             continue
         from common.tasks.registry import make_env
 
@@ -66,11 +67,12 @@ def main(argv: list[str]) -> int:
         wall = float(loaded.state.get("train_seconds", float("nan")))
         if not np.isfinite(wall):
             wall = fallback_wall.get(c, float("nan"))
-        rows.append({"iteration": int(loaded.state["iteration"]), "env_steps": int(loaded.state["env_steps"]),
-                     "wall_s": wall, **s})
-        print(f"[curve] it {rows[-1]['iteration']:5d} steps {rows[-1]['env_steps']:>10,d} wall {wall / 60:6.1f} min | "
+        row = {"iteration": int(loaded.state["iteration"]), "env_steps": int(loaded.state["env_steps"]), "wall_s": wall, **s}
+        rows[row["iteration"]] = row
+        print(f"[curve] it {row['iteration']:5d} steps {row['env_steps']:>10,d} wall {wall / 60:6.1f} min | "
               f"fall-down {s['fall_down_pct']:5.1f}% task {s['task_achievement']:6.1f} length {s['mean_seconds']:5.2f} s",
               flush=True)
+    rows = [rows[i] for i in sorted(rows)]
     (out / "curve.json").write_text(json.dumps({"shapes": args.shapes, "episode_s": args.episode_s, "seed": args.seed,
                                                 "box_scale": args.box_scale, "rows": rows}, indent=1) + "\n")
     _plot(rows, out / "curve.png", args)

@@ -44,3 +44,29 @@ def test_earlier_rows_are_reused_only_for_the_same_protocol(tmp_path):
     assert _earlier_rows(path, argparse.Namespace(shapes=100, episode_s=10.0, seed=2019, box_scale=0.5)) == {}
     path.write_text("{not json")
     assert _earlier_rows(path, same) == {}
+
+
+def test_rows_of_checkpoints_gone_since_are_kept_in_order(tmp_path):
+    """A run keeps only its newest checkpoints: the curve keeps the rows measured before the
+    older ones were deleted, and adds the new checkpoint's row in iteration order."""
+    import dataclasses
+
+    from learner import learning_curve
+    from learner.learner import Learner
+    from learner.presets import PRESETS
+
+    cfg = dataclasses.replace(PRESETS["lower_biped-tiny"][1], name="tiny")
+    state = Learner(cfg).state_dict()
+    state["iteration"], state["env_steps"] = 7, 7168
+    checkpoint.save(tmp_path / "ckpt", 7, state, keep=1)
+    out = tmp_path / "curve"
+    out.mkdir()
+    gone = {"iteration": 3, "env_steps": 3072, "wall_s": 30.0, "shapes": 2, "task_achievement": 1.0,
+            "fall_down_pct": 50.0, "fall_down_pct_extreme10": 100.0, "mean_return": 2.0, "mean_seconds": 0.1}
+    (out / "curve.json").write_text(json.dumps({"shapes": 2, "episode_s": 0.2, "seed": 2019, "box_scale": 1.0,
+                                                "rows": [gone]}))
+    argv = ["--ckpt-dir", str(tmp_path / "ckpt"), "--shapes", "2", "--episode-s", "0.2", "--out", str(out)]
+    assert learning_curve.main(argv) == 0
+    rows = json.loads((out / "curve.json").read_text())["rows"]
+    assert [r["iteration"] for r in rows] == [3, 7]
+    assert rows[0] == gone and rows[1]["env_steps"] == 7168
