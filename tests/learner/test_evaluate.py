@@ -1,5 +1,5 @@
 """`morphmimic evaluate`, `morphmimic ablation` and the morph demo on tiny untrained
-checkpoints (few shapes, short episodes); the shipped checkpoints' morph test is slow."""
+checkpoints (few shapes, short episodes), and the shipped checkpoints through the morph demo."""
 
 from __future__ import annotations
 
@@ -143,11 +143,10 @@ def test_every_shipped_checkpoint_runs_with_this_code(name: str, tmp_path: Path)
     assert len(json.loads((out / "results.json").read_text())["shapes"]) == 2
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("name", ["quadruped", "lower_biped-curriculum"])
+@pytest.mark.parametrize("name", ["quadruped", "quadruped-curriculum", "lower_biped-curriculum"])
 def test_shipped_controller_stays_up_through_a_moderate_morph(name: str) -> None:
     """A shipped controller through the default schedule at half strength (taller, shorter,
-    wider, back: 18 s, a rebuild every control step). Slow: about a minute each. The shipped
+    wider, back: 18 s, a rebuild every control step; a few seconds each). The shipped
     lower_biped is not good enough (it falls within about 2 s even without a morph)."""
     from learner import eval_core, morph_demo
 
