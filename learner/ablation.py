@@ -20,7 +20,7 @@ import json
 import sys
 from pathlib import Path
 
-from learner import eval_core
+from learner import cli_args, eval_core
 
 
 def describe(cfg) -> str:
@@ -83,10 +83,10 @@ def main(argv: list[str]) -> int:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--checkpoints", nargs="+", required=True, help="checkpoints or run directories to compare")
     p.add_argument("--out", default="ablation", help="output directory")
-    p.add_argument("--shapes", type=int, default=300)
+    p.add_argument("--shapes", type=cli_args.positive_int, default=300)
     p.add_argument("--seed", type=int, default=2019)
-    p.add_argument("--episode-s", type=float, default=30.0)
-    p.add_argument("--workers", type=int, default=1)
+    p.add_argument("--episode-s", type=cli_args.positive_float, default=30.0)
+    p.add_argument("--workers", type=cli_args.positive_int, default=1)
     p.add_argument("--map-params", nargs=2, default=None, metavar=("X", "Y"))
     args = p.parse_args(argv)
     out = Path(args.out)

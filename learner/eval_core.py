@@ -72,20 +72,6 @@ def check_box_scale(box_scale: float) -> float:
     return box_scale
 
 
-def box_scale_arg(text: str) -> float:
-    """argparse `type=` of `--box-scale`: a float in (0, 1], else a usage error naming the value."""
-    import argparse
-
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number; the box scale must be in (0, 1]") from None
-    try:
-        return check_box_scale(value)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(f"{text!r}: {exc}") from None
-
-
 def eval_task(cfg: TaskConfig, episode_s: float, box_scale: float = 1.0) -> TaskConfig:
     """The task as evaluated: every shape of the parameterization (even for a checkpoint trained
     on one shape or a shrunken box), a fixed start at phase 0, the given horizon. `box_scale` < 1

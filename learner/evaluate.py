@@ -27,28 +27,28 @@ from pathlib import Path
 
 import numpy as np
 
-from learner import eval_core, eval_plots
+from learner import cli_args, eval_core, eval_plots
 
 
 def parse(argv: list[str]) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="morphmimic evaluate", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--checkpoint", required=True, help="checkpoint dir, state.pt, run dir or learner/pretrained/<name>")
-    p.add_argument("--shapes", type=int, default=300, help="random shapes (paper: 300)")
+    p.add_argument("--shapes", type=cli_args.positive_int, default=300, help="random shapes (paper: 300)")
     p.add_argument("--seed", type=int, default=2019, help="seed of the shape draws (fixed: every checkpoint sees the same shapes)")
-    p.add_argument("--episode-s", type=float, default=30.0, help="episode length in simulated seconds (paper: 30)")
-    p.add_argument("--workers", type=int, default=1, help="processes running episodes")
-    p.add_argument("--box-scale", type=eval_core.box_scale_arg, default=1.0,
+    p.add_argument("--episode-s", type=cli_args.positive_float, default=30.0, help="episode length in simulated seconds (paper: 30)")
+    p.add_argument("--workers", type=cli_args.positive_int, default=1, help="processes running episodes")
+    p.add_argument("--box-scale", type=cli_args.box_scale, default=1.0,
                    help="draw the shapes from the box shrunk toward the base shape by this factor, as "
                         "--task.shape-box-scale does in training (a curriculum's progress); 1: the paper's protocol")
     p.add_argument("--out", default="", help="output directory (default: <checkpoint dir>/eval)")
     p.add_argument("--map-params", nargs=2, default=None, metavar=("X", "Y"),
                    help="two shape parameters of the maps (default: the run's sampler.plot_params)")
-    p.add_argument("--bins", type=int, default=6, help="cells per axis of the return map")
+    p.add_argument("--bins", type=cli_args.positive_int, default=6, help="cells per axis of the return map")
     p.add_argument("--no-render", action="store_true", help="skip the best/worst strips")
     p.add_argument("--gif", action="store_true", help="also write GIFs of the best and worst shapes")
     p.add_argument("--morph", action="store_true", help="run the morph demo (learner.morph_demo) instead")
-    p.add_argument("--strength", type=float, default=None,
+    p.add_argument("--strength", type=cli_args.finite_float, default=None,
                    help="with --morph: scale of the morph's deviation from the base shape (morph_demo's default: 1)")
     return p.parse_args(argv)
 
@@ -104,8 +104,6 @@ def main(argv: list[str]) -> int:
                                + (["--gif"] if args.gif else []))
     if args.strength is not None:
         raise SystemExit(f"--strength {args.strength} is a morph demo option: use it with --morph")
-    if args.shapes < 1 or args.episode_s <= 0:
-        raise SystemExit(f"--shapes {args.shapes} must be >= 1 and --episode-s {args.episode_s} > 0")
     loaded = eval_core.load(args.checkpoint)
     from common.tasks.registry import make_env, task_space
 

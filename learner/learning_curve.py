@@ -25,7 +25,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
 
-from learner import checkpoint, eval_core  # noqa: E402
+from learner import checkpoint, cli_args, eval_core  # noqa: E402
 
 
 def main(argv: list[str]) -> int:
@@ -34,20 +34,20 @@ def main(argv: list[str]) -> int:
     p.add_argument("--ckpt-dir", required=True, help="directory of <iteration>/state.pt checkpoints")
     p.add_argument("--run-dir", default="", help="the run directory (its config.json time is the start)")
     p.add_argument("--start", type=float, default=0.0, help="training start, Unix time (overrides --run-dir)")
-    p.add_argument("--shapes", type=int, default=100)
-    p.add_argument("--episode-s", type=float, default=10.0)
+    p.add_argument("--shapes", type=cli_args.positive_int, default=100)
+    p.add_argument("--episode-s", type=cli_args.positive_float, default=10.0)
     p.add_argument("--seed", type=int, default=2019)
-    p.add_argument("--box-scale", type=eval_core.box_scale_arg, default=1.0,
+    p.add_argument("--box-scale", type=cli_args.box_scale, default=1.0,
                    help="shapes from the box shrunk toward the base shape (a curriculum's progress); 1: the whole box")
-    p.add_argument("--every", type=int, default=1, help="evaluate every n-th checkpoint (the last always)")
-    p.add_argument("--workers", type=int, default=1)
+    p.add_argument("--every", type=cli_args.positive_int, default=1, help="evaluate every n-th checkpoint (the last always)")
+    p.add_argument("--workers", type=cli_args.positive_int, default=1)
     p.add_argument("--target", type=float, default=20.0, help="fall-down %% to report reaching")
     p.add_argument("--out", default="", help="output directory (default: <ckpt-dir>/../curve)")
     args = p.parse_args(argv)
     ckpts = checkpoint.list_checkpoints(Path(args.ckpt_dir))
     if not ckpts:
         raise SystemExit(f"--ckpt-dir {args.ckpt_dir}: no checkpoints")
-    ckpts = [c for i, c in enumerate(ckpts) if i % args.every == 0 or c == ckpts[-1]]
+    ckpts = every_nth(ckpts, args.every)
     start = args.start or (os.path.getmtime(Path(args.run_dir) / "config.json") if args.run_dir else 0.0)
     out = Path(args.out) if args.out else Path(args.ckpt_dir).parent / "curve"
     out.mkdir(parents=True, exist_ok=True)
@@ -55,9 +55,9 @@ def main(argv: list[str]) -> int:
     rows = dict(done)
     fallback_wall = _wall_from_file_times(checkpoint.list_checkpoints(Path(args.ckpt_dir)), start)
     for c in ckpts:
-        loaded = eval_core.load(c)
-        if int(loaded.state["iteration"]) in done:
+        if int(c.name) in done:  # checkpoint directories are named by iteration: skip without loading
             continue
+        loaded = eval_core.load(c)
         from common.tasks.registry import make_env
 
         env = make_env(eval_core.eval_task(loaded.cfg.task, args.episode_s, args.box_scale), seed=0)
@@ -102,6 +102,16 @@ def _wall_from_file_times(ckpts: list[Path], start: float) -> dict[Path, float]:
     expected = per_iteration * steps
     wall = np.concatenate([[first], np.where(gaps > 3.0 * expected, expected, gaps)]).cumsum()
     return dict(zip(ckpts, wall.tolist()))
+
+
+def every_nth(ckpts: list[Path], n: int) -> list[Path]:
+    """Every n-th checkpoint (and the last), chosen on the iteration grid rather than by list
+    position: the first checkpoint in each span of n x (the median iteration gap), so the choice
+    stays the same when the run deletes its oldest checkpoints and earlier rows stay reusable."""
+    its = np.array([int(c.name) for c in ckpts])
+    gap = float(np.median(np.diff(its))) if len(its) > 1 else 1.0
+    bucket = (its // max(1.0, n * gap)).astype(np.int64)
+    return [c for i, c in enumerate(ckpts) if i == 0 or bucket[i] != bucket[i - 1] or i == len(ckpts) - 1]
 
 
 def _earlier_rows(path: Path, args) -> dict[int, dict]:

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from learner import eval_core, eval_plots
+from learner import cli_args, eval_core, eval_plots
 
 SCHEDULES = {
     "leg_arm": [(0.0, {}), (1.5, {}), (4.0, {"leg_length": 1.5}), (6.0, {"leg_length": 1.5}), (8.5, {"leg_length": 0.6}),
@@ -96,8 +96,8 @@ def main(argv: list[str]) -> int:
     p.add_argument("--checkpoint", required=True)
     p.add_argument("--out", default="", help="output directory (default: <checkpoint dir>/morph)")
     p.add_argument("--schedule", default="", help='JSON keyframes, e.g. \'[[0, {}], [3, {"global_z": 1.3}], [6, {}]]\'')
-    p.add_argument("--strength", type=float, default=1.0, help="scale of every keyframe's deviation from the base shape")
-    p.add_argument("--every", type=int, default=1, help="rebuild the body every this many control steps")
+    p.add_argument("--strength", type=cli_args.finite_float, default=1.0, help="scale of every keyframe's deviation from the base shape")
+    p.add_argument("--every", type=cli_args.positive_int, default=1, help="rebuild the body every this many control steps")
     p.add_argument("--gif", action="store_true", help="also write morph.gif")
     args = p.parse_args(argv)
     loaded = eval_core.load(args.checkpoint)

@@ -153,3 +153,25 @@ def test_shipped_controller_stays_up_through_a_moderate_morph(name: str) -> None
     result = morph_demo.run_morph(eval_core.load(PRETRAINED / name), strength=0.5)
     assert result["morphs"] > 10
     assert not result["fell"], f"fell after {result['seconds']:.1f} s of {result['planned_seconds']:.1f} s"
+
+
+@pytest.mark.parametrize("command, flag, bad, allowed", [
+    ("evaluate", "--shapes", "0", "an integer >= 1"),
+    ("evaluate", "--episode-s", "-1", "a finite number > 0"),
+    ("evaluate", "--workers", "two", "an integer >= 1"),
+    ("ablation", "--shapes", "0", "an integer >= 1"),
+    ("learning_curve", "--every", "0", "an integer >= 1"),
+    ("morph_demo", "--every", "0", "an integer >= 1"),
+    ("morph_demo", "--strength", "nan", "a finite number"),
+])
+def test_bad_numbers_are_usage_errors_naming_the_value(command, flag, bad, allowed, capsys) -> None:
+    """Rejected before any checkpoint is read (the checkpoint path does not exist)."""
+    import importlib
+
+    module = importlib.import_module(f"learner.{command}")
+    first = "--checkpoints" if command == "ablation" else "--ckpt-dir" if command == "learning_curve" else "--checkpoint"
+    with pytest.raises(SystemExit) as exc:
+        module.main([first, "no/such/checkpoint", flag, bad])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert f"argument {flag}: '{bad}'" in err and f"must be {allowed}" in err, err

@@ -9,7 +9,7 @@ import os
 import pytest
 
 from learner import checkpoint
-from learner.learning_curve import _earlier_rows, _wall_from_file_times
+from learner.learning_curve import _earlier_rows, _wall_from_file_times, every_nth
 
 
 def _fake_checkpoints(tmp_path, stamps: dict[int, float]):
@@ -70,3 +70,11 @@ def test_rows_of_checkpoints_gone_since_are_kept_in_order(tmp_path):
     rows = json.loads((out / "curve.json").read_text())["rows"]
     assert [r["iteration"] for r in rows] == [3, 7]
     assert rows[0] == gone and rows[1]["env_steps"] == 7168
+
+
+def test_every_nth_does_not_shift_when_the_oldest_checkpoints_are_deleted(tmp_path):
+    ckpts = _fake_checkpoints(tmp_path, {i: 0.0 for i in range(10, 310, 10)})
+    chosen = [int(c.name) for c in every_nth(ckpts, 6)]
+    assert chosen == [10, 60, 120, 180, 240, 300]
+    later = [int(c.name) for c in every_nth(ckpts[3:], 6)]  # 10, 20, 30 deleted by the run
+    assert later == [40, 60, 120, 180, 240, 300]
