@@ -90,17 +90,22 @@ def _wall_from_file_times(ckpts: list[Path], start: float) -> dict[Path, float]:
     do not record them (an estimate; a checkpoint's own record is exact). The gaps between
     consecutive checkpoints count, except that a gap over 3x the run's median seconds per
     iteration times the iterations between them (the pause between two sessions of a resumed
-    run) counts at the median rate. The first checkpoint counts from `start` when that is earlier (a
-    resumed run rewrites config.json), else at the median rate."""
+    run) counts at the median rate, and so does a negative gap (a checkpoint copied or restored
+    later than the ones after it: its file time says nothing about training). The first checkpoint
+    counts from `start` when that is earlier (a resumed run rewrites config.json), else at the
+    median rate."""
     if len(ckpts) < 2:
         return {}
     times = np.array([os.path.getmtime(c / checkpoint.FILE) for c in ckpts])
     iters = np.array([int(c.name) for c in ckpts], dtype=float)
     gaps, steps = np.diff(times), np.maximum(np.diff(iters), 1.0)
-    per_iteration = float(np.median(gaps / steps))
+    forward = gaps > 0
+    if not forward.any():
+        return {}
+    per_iteration = float(np.median(gaps[forward] / steps[forward]))
     first = times[0] - start if start and 0 < times[0] - start else per_iteration * iters[0]
     expected = per_iteration * steps
-    wall = np.concatenate([[first], np.where(gaps > 3.0 * expected, expected, gaps)]).cumsum()
+    wall = np.concatenate([[first], np.where(~forward | (gaps > 3.0 * expected), expected, gaps)]).cumsum()
     return dict(zip(ckpts, wall.tolist()))
 
 

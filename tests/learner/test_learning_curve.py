@@ -34,6 +34,16 @@ def test_wall_time_from_file_times_leaves_out_the_pause_between_sessions(tmp_pat
     assert [resumed[c] for c in ckpts] == pytest.approx([100, 200, 300, 400, 500])
 
 
+def test_wall_time_never_runs_backwards_when_a_checkpoint_was_copied_later(tmp_path):
+    """A lineage directory mixing copies (new file times) with the original checkpoints: the
+    copied one counts at the median rate instead of making the clock go back."""
+    t0 = 1_000_000.0
+    ckpts = _fake_checkpoints(tmp_path, {10: t0 + 100, 20: t0 + 200, 30: t0 + 90_000, 40: t0 + 400, 50: t0 + 500})
+    wall = [_wall_from_file_times(ckpts, start=t0)[c] for c in ckpts]
+    assert all(b > a for a, b in zip(wall, wall[1:])), wall
+    assert wall[:2] == pytest.approx([100, 200])
+
+
 def test_earlier_rows_are_reused_only_for_the_same_protocol(tmp_path):
     path = tmp_path / "curve.json"
     rows = [{"iteration": 10, "fall_down_pct": 90.0}]
