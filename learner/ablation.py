@@ -84,7 +84,7 @@ def main(argv: list[str]) -> int:
     p.add_argument("--checkpoints", nargs="+", required=True, help="checkpoints or run directories to compare")
     p.add_argument("--out", default="ablation", help="output directory")
     p.add_argument("--shapes", type=cli_args.positive_int, default=300)
-    p.add_argument("--seed", type=int, default=2019)
+    p.add_argument("--seed", type=cli_args.seed, default=2019)
     p.add_argument("--episode-s", type=cli_args.positive_float, default=30.0)
     p.add_argument("--workers", type=cli_args.positive_int, default=1)
     p.add_argument("--map-params", nargs=2, default=None, metavar=("X", "Y"))

@@ -29,6 +29,22 @@ def positive_int(text: str) -> int:
     return value
 
 
+def seed(text: str) -> int:
+    """A random seed: an integer >= 0 (numpy's generators refuse negative seeds)."""
+    value = _number(text, int, "an integer >= 0")
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be an integer >= 0")
+    return value
+
+
+def percent(text: str) -> float:
+    """A percentage in [0, 100] (a fall-down target)."""
+    value = _number(text, float, "a number in [0, 100]")
+    if not 0.0 <= value <= 100.0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be a number in [0, 100]")
+    return value
+
+
 def positive_float(text: str) -> float:
     """A finite number > 0 (episode lengths in seconds)."""
     value = _number(text, float, "a finite number > 0")

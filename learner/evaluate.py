@@ -35,7 +35,7 @@ def parse(argv: list[str]) -> argparse.Namespace:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--checkpoint", required=True, help="checkpoint dir, state.pt, run dir or learner/pretrained/<name>")
     p.add_argument("--shapes", type=cli_args.positive_int, default=300, help="random shapes (paper: 300)")
-    p.add_argument("--seed", type=int, default=2019, help="seed of the shape draws (fixed: every checkpoint sees the same shapes)")
+    p.add_argument("--seed", type=cli_args.seed, default=2019, help="seed of the shape draws (fixed: every checkpoint sees the same shapes)")
     p.add_argument("--episode-s", type=cli_args.positive_float, default=30.0, help="episode length in simulated seconds (paper: 30)")
     p.add_argument("--workers", type=cli_args.positive_int, default=1, help="processes running episodes")
     p.add_argument("--box-scale", type=cli_args.box_scale, default=1.0,

@@ -36,12 +36,12 @@ def main(argv: list[str]) -> int:
     p.add_argument("--start", type=float, default=0.0, help="training start, Unix time (overrides --run-dir)")
     p.add_argument("--shapes", type=cli_args.positive_int, default=100)
     p.add_argument("--episode-s", type=cli_args.positive_float, default=10.0)
-    p.add_argument("--seed", type=int, default=2019)
+    p.add_argument("--seed", type=cli_args.seed, default=2019)
     p.add_argument("--box-scale", type=cli_args.box_scale, default=1.0,
                    help="shapes from the box shrunk toward the base shape (a curriculum's progress); 1: the whole box")
     p.add_argument("--every", type=cli_args.positive_int, default=1, help="evaluate every n-th checkpoint (the last always)")
     p.add_argument("--workers", type=cli_args.positive_int, default=1)
-    p.add_argument("--target", type=float, default=20.0, help="fall-down %% to report reaching")
+    p.add_argument("--target", type=cli_args.percent, default=20.0, help="fall-down %% to report reaching")
     p.add_argument("--out", default="", help="output directory (default: <ckpt-dir>/../curve)")
     args = p.parse_args(argv)
     ckpts = checkpoint.list_checkpoints(Path(args.ckpt_dir))
@@ -53,13 +53,13 @@ def main(argv: list[str]) -> int:
     out.mkdir(parents=True, exist_ok=True)
     done = _earlier_rows(out / "curve.json", args)
     rows = dict(done)
+    from common.tasks.registry import make_env
+
     fallback_wall = _wall_from_file_times(checkpoint.list_checkpoints(Path(args.ckpt_dir)), start)
     for c in ckpts:
         if int(c.name) in done:  # checkpoint directories are named by iteration: skip without loading
             continue
         loaded = eval_core.load(c)
-        from common.tasks.registry import make_env
-
         env = make_env(eval_core.eval_task(loaded.cfg.task, args.episode_s, args.box_scale), seed=0)
         shapes = eval_core.eval_shapes(env.space, args.shapes, args.seed)
         res = eval_core.evaluate(loaded, shapes, args.episode_s, args.seed, args.workers, box_scale=args.box_scale)

@@ -163,6 +163,10 @@ def test_shipped_controller_stays_up_through_a_moderate_morph(name: str) -> None
     ("learning_curve", "--every", "0", "an integer >= 1"),
     ("morph_demo", "--every", "0", "an integer >= 1"),
     ("morph_demo", "--strength", "nan", "a finite number"),
+    ("evaluate", "--seed", "-1", "an integer >= 0"),
+    ("ablation", "--seed", "-1", "an integer >= 0"),
+    ("learning_curve", "--target", "nan", "a number in [0, 100]"),
+    ("learning_curve", "--target", "150", "a number in [0, 100]"),
 ])
 def test_bad_numbers_are_usage_errors_naming_the_value(command, flag, bad, allowed, capsys) -> None:
     """Rejected before any checkpoint is read (the checkpoint path does not exist)."""

@@ -88,3 +88,30 @@ def test_every_nth_does_not_shift_when_the_oldest_checkpoints_are_deleted(tmp_pa
     assert chosen == [10, 60, 120, 180, 240, 300]
     later = [int(c.name) for c in every_nth(ckpts[3:], 6)]  # 10, 20, 30 deleted by the run
     assert later == [40, 60, 120, 180, 240, 300]
+
+
+def test_curve_end_to_end_writes_rows_and_reuses_them(tmp_path, capsys):
+    """Two tiny untrained checkpoints: the curve evaluates both, writes curve.json and curve.png;
+    a second call with the same protocol evaluates nothing and keeps the rows."""
+    import dataclasses
+    import json
+
+    from learner import learning_curve
+    from learner.learner import Learner
+    from learner.presets import PRESETS
+
+    cfg = PRESETS["lower_biped-tiny"][1]
+    state = Learner(dataclasses.replace(cfg, name="tiny")).state_dict()
+    for it in (0, 10):
+        checkpoint.save(tmp_path / "ckpt", it, {**state, "iteration": it, "env_steps": it * 1024}, keep=5)
+    argv = ["--ckpt-dir", str(tmp_path / "ckpt"), "--shapes", "2", "--episode-s", "0.3", "--out", str(tmp_path / "curve")]
+    assert learning_curve.main(argv) == 0
+    first = capsys.readouterr().out
+    assert first.count("[curve] it") == 2
+    assert "reached 20% fall-down" in first or "never reached 20%" in first
+    data = json.loads((tmp_path / "curve" / "curve.json").read_text())
+    assert [r["iteration"] for r in data["rows"]] == [0, 10] and all(0 <= r["fall_down_pct"] <= 100 for r in data["rows"])
+    assert (tmp_path / "curve" / "curve.png").read_bytes()[:4] == b"\x89PNG"
+    assert learning_curve.main(argv) == 0
+    assert capsys.readouterr().out.count("[curve] it") == 0
+    assert json.loads((tmp_path / "curve" / "curve.json").read_text())["rows"] == data["rows"]
