@@ -5,6 +5,7 @@ before any checkpoint is loaded or any episode run."""
 from __future__ import annotations
 
 import argparse
+import json
 import math
 
 from learner.eval_core import check_box_scale
@@ -65,3 +66,29 @@ def box_scale(text: str) -> float:
         return check_box_scale(value)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(f"{text!r}: {exc}") from None
+
+
+def morph_schedule(text: str) -> list[tuple[float, dict[str, float]]]:
+    """JSON keyframes `[[time_s, {parameter: value}], ...]` with times >= 0 and strictly
+    increasing (the morph interpolates between them) and finite values. Parameter names are
+    checked against the checkpoint's shape space when the schedule is used."""
+    allowed = 'JSON keyframes [[time_s, {"parameter": value}], ...] with times >= 0 strictly increasing'
+    try:
+        raw = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise argparse.ArgumentTypeError(f"{text!r} is not JSON ({exc.msg}); it must be {allowed}") from None
+    if not isinstance(raw, list) or not raw:
+        raise argparse.ArgumentTypeError(f"{text!r} must be a non-empty list of {allowed}")
+    keys: list[tuple[float, dict[str, float]]] = []
+    for k in raw:
+        ok = isinstance(k, list) and len(k) == 2 and isinstance(k[1], dict)
+        t = k[0] if ok else None
+        if not ok or isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t) or t < 0:
+            raise argparse.ArgumentTypeError(f"keyframe {json.dumps(k)} in {text!r}: each must be [time_s >= 0, {{...}}]")
+        for name, v in k[1].items():
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise argparse.ArgumentTypeError(f"keyframe {json.dumps(k)}: {name} = {v!r} must be a finite number")
+        if keys and t <= keys[-1][0]:
+            raise argparse.ArgumentTypeError(f"keyframe times {[kk[0] for kk in keys] + [t]} must be strictly increasing")
+        keys.append((float(t), {str(n): float(v) for n, v in k[1].items()}))
+    return keys

@@ -101,12 +101,17 @@ def eval_shapes(space, n: int, seed: int) -> np.ndarray:
 
 
 def extremeness(space, params: np.ndarray, n_shape: int | None = None) -> np.ndarray:
-    """`[n]` L2 norm of the shape parameters mapped to [-1, 1] over the box: 0 = the centre."""
+    """`[n]` how far each shape is from the base character: the L2 norm of the shape parameters
+    mapped so that the base (default) value is 0 and each end of the box is +-1, one scale per
+    side, since the box is lopsided around the base (leg length 0.5-2.0 around 1.0). 0 = the base
+    shape, the shape a box shrinks toward. Won & Lee 2019 report that adaptive sampling makes
+    extreme shapes fall far less (METHOD.md A, results)."""
     params = np.atleast_2d(params)
     k = n_shape or params.shape[1]
-    lo, hi = space.low_array[:k], space.high_array[:k]
-    span = np.where(hi > lo, hi - lo, 1.0)
-    return np.linalg.norm(np.where(hi > lo, 2 * (params[:, :k] - lo) / span - 1, 0.0), axis=1)
+    lo, hi, base = space.low_array[:k], space.high_array[:k], space.default_array[:k]
+    d = params[:, :k] - base
+    side = np.where(d > 0, hi - base, base - lo)
+    return np.linalg.norm(np.where(side > 0, d / np.where(side > 0, side, 1.0), 0.0), axis=1)
 
 
 def run_episode(env, policy: GaussianPolicy, params: np.ndarray, seed: int,
@@ -176,9 +181,10 @@ def evaluate(loaded: Loaded, shapes: np.ndarray, episode_s: float, seed: int, wo
 
 def summarize(results: list[dict], space, n_shape: int) -> dict[str, Any]:
     """Task achievement (mean cumulative task reward), fall-down %, mean return and the
-    fall-down % on the most extreme 10% of shapes (by `extremeness`)."""
+    fall-down % on the most extreme 10% of shapes (by `extremeness`). An episode the simulator
+    diverged in ended before its length too, so it counts as a fall (and in `diverged`)."""
     params = np.array([r["params"] for r in results])
-    fell = np.array([r["fell"] for r in results], dtype=bool)
+    fell = np.array([r["fell"] or r["diverged"] for r in results], dtype=bool)
     ext = extremeness(space, params, n_shape)
     top = np.argsort(ext)[-max(1, len(results) // 10):]
     return {

@@ -94,10 +94,19 @@ def markdown(name: str, summary: dict, args: argparse.Namespace, files: list[str
     return "\n".join(lines)
 
 
+# Evaluation options that the morph demo does not take: refused with --morph rather than ignored.
+_NOT_MORPH = ("shapes", "seed", "episode_s", "workers", "box_scale", "map_params", "bins", "no_render")
+
+
 def main(argv: list[str]) -> int:
     args = parse(argv)
     if args.morph:
         from learner import morph_demo
+
+        defaults = vars(parse(["--checkpoint", args.checkpoint]))
+        ignored = [f"--{k.replace('_', '-')}" for k in _NOT_MORPH if getattr(args, k) != defaults[k]]
+        if ignored:
+            raise SystemExit(f"{', '.join(ignored)}: not options of the morph demo (--morph takes --out, --strength, --gif)")
 
         return morph_demo.main(["--checkpoint", args.checkpoint] + (["--out", args.out] if args.out else [])
                                + ([] if args.strength is None else ["--strength", str(args.strength)])
@@ -114,6 +123,7 @@ def main(argv: list[str]) -> int:
     out = Path(args.out) if args.out else loaded.path.parent / "eval"
     out.mkdir(parents=True, exist_ok=True)
     names = args.map_params or list(loaded.cfg.sampler.plot_params) or list(space.names[:2])
+    eval_plots.axes_of(space, names)  # a bad --map-params fails now, not after hours of episodes
     shapes = eval_core.eval_shapes(space, args.shapes, args.seed)
     t0 = time.monotonic()
     last = [0.0]
@@ -127,6 +137,14 @@ def main(argv: list[str]) -> int:
                                  box_scale=args.box_scale)
     summary = eval_core.summarize(results, space, n_shape)
     summary["wall_s"] = time.monotonic() - t0
+    meta = {"checkpoint": str(loaded.path), "name": loaded.name, "iteration": int(loaded.state.get("iteration", 0)),
+            "env_steps": int(loaded.state.get("env_steps", 0)), "seed": args.seed, "episode_s": args.episode_s,
+            "box_scale": args.box_scale, "param_names": list(space.names), "map_params": names}
+
+    def write_results() -> None:
+        (out / "results.json").write_text(json.dumps({"meta": meta, "summary": summary, "shapes": results}, indent=1) + "\n")
+
+    write_results()  # the episodes are kept even if the maps or the rendering fail; rewritten with them below
     params = np.array([r["params"] for r in results])
     sampler_state = loaded.state.get("sampler")
     if sampler_state:
@@ -151,11 +169,7 @@ def main(argv: list[str]) -> int:
         for stem, r in (("best", order[-1]), ("worst", order[0])):
             files += render_episode(loaded, np.array(r["params"]), args.seed + r["index"], args.episode_s, out, stem, args.gif,
                                     args.box_scale)
-    meta = {"checkpoint": str(loaded.path), "name": loaded.name, "iteration": int(loaded.state.get("iteration", 0)),
-            "env_steps": int(loaded.state.get("env_steps", 0)), "seed": args.seed, "episode_s": args.episode_s,
-            "box_scale": args.box_scale,
-            "param_names": list(space.names), "map_params": names}
-    (out / "results.json").write_text(json.dumps({"meta": meta, "summary": summary, "shapes": results}, indent=1) + "\n")
+    write_results()
     files.insert(0, str(out / "results.json"))
     (out / "summary.md").write_text(markdown(loaded.name, summary, args, files + [str(out / "summary.md")], loaded))
     print(f"[evaluate] {loaded.name}: task achievement {summary['task_achievement']:.1f}, fall-down "

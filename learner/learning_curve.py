@@ -11,7 +11,8 @@ time of the run's `config.json`, written when training starts; pass the run dire
 first checkpoint below `--target` fall-down %. Rows of an earlier `curve.json` in `--out` made
 with the same shapes, episode length, seed and box are reused, so a growing run is evaluated only
 on its new checkpoints, and kept when their checkpoints are gone (a run keeps only its newest
-`keep_checkpoints`): the curve is the run's history.
+`keep_checkpoints`): the curve is the run's history. An earlier curve made with other settings is
+refused, not overwritten.
 """
 
 from __future__ import annotations
@@ -51,8 +52,10 @@ def main(argv: list[str]) -> int:
     start = args.start or (os.path.getmtime(Path(args.run_dir) / "config.json") if args.run_dir else 0.0)
     out = Path(args.out) if args.out else Path(args.ckpt_dir).parent / "curve"
     out.mkdir(parents=True, exist_ok=True)
-    done = _earlier_rows(out / "curve.json", args)
+    done, stale = _earlier_rows(out / "curve.json", args)
     rows = dict(done)
+    for it, row in stale.items():  # kept unless its checkpoint is measured again below
+        rows[it] = {**row, "fall_down_pct_extreme10": None}
     from common.tasks.registry import make_env
 
     fallback_wall = _wall_from_file_times(checkpoint.list_checkpoints(Path(args.ckpt_dir)), start)
@@ -67,18 +70,20 @@ def main(argv: list[str]) -> int:
         wall = float(loaded.state.get("train_seconds", float("nan")))
         if not np.isfinite(wall):
             wall = fallback_wall.get(c, float("nan"))
+        wall = wall if np.isfinite(wall) else None  # JSON null: unknown
         row = {"iteration": int(loaded.state["iteration"]), "env_steps": int(loaded.state["env_steps"]), "wall_s": wall, **s}
         rows[row["iteration"]] = row
-        print(f"[curve] it {row['iteration']:5d} steps {row['env_steps']:>10,d} wall {wall / 60:6.1f} min | "
+        print(f"[curve] it {row['iteration']:5d} steps {row['env_steps']:>10,d} wall {_minutes(wall)} min | "
               f"fall-down {s['fall_down_pct']:5.1f}% task {s['task_achievement']:6.1f} length {s['mean_seconds']:5.2f} s",
               flush=True)
     rows = [rows[i] for i in sorted(rows)]
     (out / "curve.json").write_text(json.dumps({"shapes": args.shapes, "episode_s": args.episode_s, "seed": args.seed,
-                                                "box_scale": args.box_scale, "rows": rows}, indent=1) + "\n")
+                                                "box_scale": args.box_scale, "extreme": EXTREME, "rows": rows},
+                                               indent=1) + "\n")
     _plot(rows, out / "curve.png", args)
     hit = next((r for r in rows if r["fall_down_pct"] <= args.target), None)
     if hit:
-        print(f"[curve] reached {args.target:g}% fall-down at {hit['env_steps']:,d} env steps, {hit['wall_s'] / 60:.1f} min")
+        print(f"[curve] reached {args.target:g}% fall-down at {hit['env_steps']:,d} env steps, {_minutes(hit['wall_s'])} min")
     else:
         best = min(rows, key=lambda r: r["fall_down_pct"])
         print(f"[curve] never reached {args.target:g}%: best {best['fall_down_pct']:.1f}% at {best['env_steps']:,d} steps")
@@ -109,28 +114,48 @@ def _wall_from_file_times(ckpts: list[Path], start: float) -> dict[Path, float]:
     return dict(zip(ckpts, wall.tolist()))
 
 
+def _minutes(seconds: float | None) -> str:
+    return "     ?" if seconds is None or not np.isfinite(seconds) else f"{seconds / 60:6.1f}"
+
+
 def every_nth(ckpts: list[Path], n: int) -> list[Path]:
     """Every n-th checkpoint (and the last), chosen on the iteration grid rather than by list
     position: the first checkpoint in each span of n x (the median iteration gap), so the choice
     stays the same when the run deletes its oldest checkpoints and earlier rows stay reusable."""
+    if n == 1:  # every checkpoint, also one saved off the grid (at a stop)
+        return list(ckpts)
     its = np.array([int(c.name) for c in ckpts])
     gap = float(np.median(np.diff(its))) if len(its) > 1 else 1.0
     bucket = (its // max(1.0, n * gap)).astype(np.int64)
     return [c for i, c in enumerate(ckpts) if i == 0 or bucket[i] != bucket[i - 1] or i == len(ckpts) - 1]
 
 
-def _earlier_rows(path: Path, args) -> dict[int, dict]:
-    """Iteration -> row of an earlier curve.json made with the same shapes, episode, seed and box."""
+# Version of the extreme-10% column: "base" since it ranks shapes by their distance from the base
+# shape (`eval_core.extremeness`); curves written before then ranked them from the box centre.
+EXTREME = "base"
+PROTOCOL = ("shapes", "episode_s", "seed", "box_scale")
+
+
+def _earlier_rows(path: Path, args) -> tuple[dict[int, dict], dict[int, dict]]:
+    """Rows of an earlier curve.json in `--out`, iteration -> row: (current, stale). Stale rows
+    were measured before the extreme-10% ranking changed: their checkpoints are measured again,
+    and rows whose checkpoints are gone keep their fall-down % with no extreme-10% figure. A file
+    made with other shapes, episode length, seed or box is refused rather than overwritten: its
+    rows may be the only record of checkpoints the run has since deleted."""
     if not path.exists():
-        return {}
+        return {}, {}
     try:
         earlier = json.loads(path.read_text())
         earlier = {"box_scale": 1.0, **earlier}  # curves from before --box-scale used the whole box
-        same = all(earlier.get(k) == getattr(args, k) for k in ("shapes", "episode_s", "seed", "box_scale"))
-        return {int(r["iteration"]): r for r in earlier["rows"]} if same else {}
+        rows = {int(r["iteration"]): r for r in earlier["rows"]}
     except (ValueError, KeyError, TypeError) as exc:
-        print(f"[curve] ignoring unreadable {path}: {exc}")
-        return {}
+        raise SystemExit(f"{path}: unreadable curve ({exc}); move it away or choose another --out") from None
+    differ = {k: (earlier.get(k), getattr(args, k)) for k in PROTOCOL if earlier.get(k) != getattr(args, k)}
+    if differ:
+        raise SystemExit(f"{path} was made with " + ", ".join(f"{k} {a!r}" for k, (a, _) in differ.items())
+                         + "; this call asks for " + ", ".join(f"{k} {b!r}" for k, (_, b) in differ.items())
+                         + ": choose another --out (its rows are kept)")
+    return (rows, {}) if earlier.get("extreme") == EXTREME else ({}, rows)
 
 
 def _plot(rows: list[dict], path: Path, args) -> None:
@@ -142,7 +167,9 @@ def _plot(rows: list[dict], path: Path, args) -> None:
     steps = np.array([r["env_steps"] for r in rows]) / 1e6
     fig, ax = plt.subplots(figsize=(6, 4), dpi=120)
     ax.plot(steps, [r["fall_down_pct"] for r in rows], "o-", label="fall-down %")
-    ax.plot(steps, [r["fall_down_pct_extreme10"] for r in rows], "s--", label="fall-down % (extreme 10%)")
+    extreme = [np.nan if r.get("fall_down_pct_extreme10") is None else r["fall_down_pct_extreme10"] for r in rows]
+    if np.isfinite(extreme).any():  # curves kept from before the ranking changed have none
+        ax.plot(steps, extreme, "s--", label="fall-down % (extreme 10%, from the base shape)")
     ax.axhline(args.target, color="gray", lw=0.8, ls=":")
     ax.set_xlabel("environment steps (M)")
     ax.set_ylabel("%")

@@ -5,10 +5,10 @@ changes shape while the trained controller runs, and the episode is recorded.
     python -m learner.morph_demo --checkpoint learner/pretrained/lower_biped --strength 0.5 --gif
 
 The schedule is a list of keyframes `(time_s, {shape parameter: value})`, linearly
-interpolated (parameters not named stay at 1.0, the base shape); the body is rebuilt every
+interpolated (parameters not named stay at the base shape's value, 1.0); the body is rebuilt every
 `--every` control steps (`ImitateEnv.set_shape`: state carried over, lifted out of the floor,
 reference retargeted). Defaults per parameterization follow Figure 1: tall, then half height
-(short), then long limbs, then back. `--strength s` scales every keyframe's deviation from 1.0
+(short), then long limbs, then back. `--strength s` scales every keyframe's deviation from the base
 (s = 0.5: a moderate morph). Writes `morph.png` (strip), `morph.gif` (with --gif) and
 `morph.json` (the schedule, whether and when it fell) into `--out`.
 """
@@ -51,7 +51,8 @@ def shape_at(schedule, t_s: float, space, n_shape: int, strength: float) -> np.n
         for name, x in values.items():
             if name not in space.names[:n_shape]:
                 raise SystemExit(f"schedule parameter {name!r} is not one of {list(space.names[:n_shape])}")
-            v[space.names.index(name)] = 1.0 + strength * (x - 1.0)
+            i = space.names.index(name)
+            v[i] = base[i] + strength * (x - base[i])
         keys.append(v)
     keys = np.array(keys)
     out = np.array([np.interp(t_s, times, keys[:, i]) for i in range(n_shape)])
@@ -95,13 +96,14 @@ def main(argv: list[str]) -> int:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--checkpoint", required=True)
     p.add_argument("--out", default="", help="output directory (default: <checkpoint dir>/morph)")
-    p.add_argument("--schedule", default="", help='JSON keyframes, e.g. \'[[0, {}], [3, {"global_z": 1.3}], [6, {}]]\'')
+    p.add_argument("--schedule", type=cli_args.morph_schedule, default=None,
+                   help='JSON keyframes, e.g. \'[[0, {}], [3, {"global_z": 1.3}], [6, {}]]\'')
     p.add_argument("--strength", type=cli_args.finite_float, default=1.0, help="scale of every keyframe's deviation from the base shape")
     p.add_argument("--every", type=cli_args.positive_int, default=1, help="rebuild the body every this many control steps")
     p.add_argument("--gif", action="store_true", help="also write morph.gif")
     args = p.parse_args(argv)
     loaded = eval_core.load(args.checkpoint)
-    schedule = [(float(t), dict(v)) for t, v in json.loads(args.schedule)] if args.schedule else None
+    schedule = args.schedule
     out = Path(args.out) if args.out else loaded.path.parent / "morph"
     rec = eval_plots.Recorder(every=3 if args.gif else 15)
     result = run_morph(loaded, schedule, args.strength, args.every, recorder=rec)

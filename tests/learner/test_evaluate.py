@@ -55,8 +55,39 @@ def test_same_seed_gives_the_same_shapes(tmp_path: Path) -> None:
     # A checkpoint trained on a shrunken box (a curriculum stage) is evaluated on the whole box.
     shrunk = dataclasses.replace(loaded.cfg.task, shape_box_scale=0.25)
     np.testing.assert_array_equal(task_space(eval_core.eval_task(shrunk, 1.0)).low_array, space.low_array)
-    ext = eval_core.extremeness(space, np.stack([space.default_array, space.low_array]))
-    assert ext[0] < ext[1]
+
+
+def test_extremeness_is_the_distance_from_the_base_shape_one_scale_per_side() -> None:
+    """The height/thickness box is lopsided around the base (height 0.75-1.5 around 1.0): the
+    base shape scores 0 and either end of a parameter scores 1, however far from the base it is."""
+    from common.tasks.base import TaskConfig
+    from common.tasks.registry import task_space
+    from learner import eval_core
+
+    space = task_space(TaskConfig(name="lower_biped", parameterization="height_thickness"))
+    lo, hi, base = space.low_array, space.high_array, space.default_array
+    assert not np.allclose(hi - base, base - lo)  # the box is lopsided
+    ends = np.stack([base, np.where(np.arange(space.dim) == 0, lo, base), np.where(np.arange(space.dim) == 0, hi, base)])
+    np.testing.assert_allclose(eval_core.extremeness(space, ends, 1), [0.0, 1.0, 1.0])
+    corner = eval_core.extremeness(space, np.stack([lo, hi]), 2)
+    np.testing.assert_allclose(corner, [np.sqrt(2), np.sqrt(2)])
+
+
+def test_summary_counts_falls_divergences_and_the_extreme_tenth() -> None:
+    """20 shapes along one parameter: the two farthest from the base (the extreme 10%) fell, one
+    near the base diverged (ended early: a fall too); the rest stayed up."""
+    from common.tasks.base import TaskConfig
+    from common.tasks.registry import task_space
+    from learner import eval_core
+
+    space = task_space(TaskConfig(name="lower_biped", parameterization="height_thickness"))
+    base = space.default_array
+    xs = np.linspace(base[0], space.high_array[0], 20)
+    results = [{"params": [x, *base[1:]], "fell": i >= 18, "diverged": i == 1, "return": 1.0, "task_reward": 2.0,
+                "seconds": 3.0} for i, x in enumerate(xs)]
+    s = eval_core.summarize(results, space, 2)
+    assert s["fall_down_pct"] == pytest.approx(15.0)
+    assert s["fall_down_pct_extreme10"] == 100.0 and s["diverged"] == 1
 
 
 def test_evaluate_box_scale_draws_shapes_from_the_shrunk_box(tmp_path: Path, capsys) -> None:
@@ -129,6 +160,47 @@ def test_evaluate_morph_forwards_the_strength_and_refuses_it_alone(tmp_path: Pat
     assert json.loads((out / "morph.json").read_text())["strength"] == 0.5
     with pytest.raises(SystemExit, match="--strength 0.5 is a morph demo option"):
         evaluate.main(["--checkpoint", str(ckpt), "--strength", "0.5", "--out", str(tmp_path / "e")])
+    with pytest.raises(SystemExit, match="--shapes, --episode-s: not options of the morph demo"):
+        evaluate.main(["--checkpoint", str(ckpt), "--morph", "--shapes", "20", "--episode-s", "5"])
+
+
+def test_bad_map_params_fail_before_any_episode_and_a_render_failure_keeps_the_results(tmp_path: Path,
+                                                                                      monkeypatch) -> None:
+    from learner import eval_core, evaluate
+
+    _tiny_checkpoint(tmp_path, "tiny")
+    ran = []
+    monkeypatch.setattr(eval_core, "evaluate", lambda *a, **k: ran.append(1))
+    argv = ["--checkpoint", str(tmp_path / "tiny"), "--shapes", "2", "--episode-s", "0.3", "--out", str(tmp_path / "e")]
+    with pytest.raises(SystemExit, match=r"--map-params \['global_z', 'nope'\]: choose two of"):
+        evaluate.main(argv + ["--map-params", "global_z", "nope"])
+    assert not ran
+    monkeypatch.undo()
+
+    def broken(*a, **k):
+        raise RuntimeError("no GL context")
+
+    monkeypatch.setattr(evaluate, "render_episode", broken)
+    with pytest.raises(RuntimeError, match="no GL context"):
+        evaluate.main(argv)
+    assert len(json.loads((tmp_path / "e" / "results.json").read_text())["shapes"]) == 2
+
+
+@pytest.mark.parametrize("bad, says", [
+    ("[[0, {}], [3", "is not JSON"),
+    ('{"global_z": 1.3}', "must be a non-empty list"),
+    ("[[0, {}], [3, {}], [2, {}]]", "times [0.0, 3.0, 2] must be strictly increasing"),
+    ("[[-1, {}]]", "each must be [time_s >= 0"),
+    ('[[0, {"global_z": "tall"}]]', "global_z = 'tall' must be a finite number"),
+])
+def test_bad_morph_schedules_are_usage_errors(bad: str, says: str, capsys) -> None:
+    from learner import morph_demo
+
+    with pytest.raises(SystemExit) as exc:
+        morph_demo.main(["--checkpoint", "no/such/checkpoint", "--schedule", bad])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "argument --schedule" in err and says in err, err
 
 
 @pytest.mark.parametrize("name", sorted(p.name for p in PRETRAINED.iterdir() if (p / "state.pt").is_file()))

@@ -44,16 +44,30 @@ def test_wall_time_never_runs_backwards_when_a_checkpoint_was_copied_later(tmp_p
     assert wall[:2] == pytest.approx([100, 200])
 
 
-def test_earlier_rows_are_reused_only_for_the_same_protocol(tmp_path):
+def test_earlier_rows_are_reused_only_for_the_same_protocol_and_another_is_refused(tmp_path):
     path = tmp_path / "curve.json"
     rows = [{"iteration": 10, "fall_down_pct": 90.0}]
-    path.write_text(json.dumps({"shapes": 100, "episode_s": 10.0, "seed": 2019, "rows": rows}))
+    path.write_text(json.dumps({"shapes": 100, "episode_s": 10.0, "seed": 2019, "extreme": "base", "rows": rows}))
     same = argparse.Namespace(shapes=100, episode_s=10.0, seed=2019, box_scale=1.0)
-    assert _earlier_rows(path, same) == {10: rows[0]}  # a curve.json from before --box-scale: the whole box
-    assert _earlier_rows(path, argparse.Namespace(shapes=300, episode_s=10.0, seed=2019, box_scale=1.0)) == {}
-    assert _earlier_rows(path, argparse.Namespace(shapes=100, episode_s=10.0, seed=2019, box_scale=0.5)) == {}
+    assert _earlier_rows(path, same) == ({10: rows[0]}, {})  # a curve.json from before --box-scale: the whole box
+    before = path.read_text()
+    with pytest.raises(SystemExit, match=r"shapes 100.*asks for shapes 300.*another --out"):
+        _earlier_rows(path, argparse.Namespace(shapes=300, episode_s=10.0, seed=2019, box_scale=1.0))
+    with pytest.raises(SystemExit, match=r"box_scale 1\.0.*asks for box_scale 0\.5"):
+        _earlier_rows(path, argparse.Namespace(shapes=100, episode_s=10.0, seed=2019, box_scale=0.5))
+    assert path.read_text() == before
     path.write_text("{not json")
-    assert _earlier_rows(path, same) == {}
+    with pytest.raises(SystemExit, match="unreadable curve"):
+        _earlier_rows(path, same)
+
+
+def test_rows_from_before_the_extreme_ranking_changed_are_stale(tmp_path):
+    """A curve.json without the "extreme" version ranked the extreme 10% from the box centre:
+    its rows come back as stale (measured again where the checkpoint still exists)."""
+    path = tmp_path / "curve.json"
+    rows = [{"iteration": 10, "fall_down_pct": 90.0, "fall_down_pct_extreme10": 95.0}]
+    path.write_text(json.dumps({"shapes": 100, "episode_s": 10.0, "seed": 2019, "box_scale": 1.0, "rows": rows}))
+    assert _earlier_rows(path, argparse.Namespace(shapes=100, episode_s=10.0, seed=2019, box_scale=1.0)) == ({}, {10: rows[0]})
 
 
 def test_rows_of_checkpoints_gone_since_are_kept_in_order(tmp_path):
@@ -74,12 +88,21 @@ def test_rows_of_checkpoints_gone_since_are_kept_in_order(tmp_path):
     gone = {"iteration": 3, "env_steps": 3072, "wall_s": 30.0, "shapes": 2, "task_achievement": 1.0,
             "fall_down_pct": 50.0, "fall_down_pct_extreme10": 100.0, "mean_return": 2.0, "mean_seconds": 0.1}
     (out / "curve.json").write_text(json.dumps({"shapes": 2, "episode_s": 0.2, "seed": 2019, "box_scale": 1.0,
-                                                "rows": [gone]}))
+                                                "extreme": "base", "rows": [gone]}))
     argv = ["--ckpt-dir", str(tmp_path / "ckpt"), "--shapes", "2", "--episode-s", "0.2", "--out", str(out)]
     assert learning_curve.main(argv) == 0
     rows = json.loads((out / "curve.json").read_text())["rows"]
     assert [r["iteration"] for r in rows] == [3, 7]
     assert rows[0] == gone and rows[1]["env_steps"] == 7168
+    # The same history written before the extreme-10% ranking changed: the row of the deleted
+    # checkpoint keeps its fall-down % but loses its extreme-10% figure; the live one is measured.
+    (out / "curve.json").write_text(json.dumps({"shapes": 2, "episode_s": 0.2, "seed": 2019, "box_scale": 1.0,
+                                                "rows": [gone, {**rows[1], "fall_down_pct_extreme10": 12.5}]}))
+    assert learning_curve.main(argv) == 0
+    data = json.loads((out / "curve.json").read_text())
+    assert data["extreme"] == "base"
+    assert data["rows"][0] == {**gone, "fall_down_pct_extreme10": None}
+    assert data["rows"][1]["fall_down_pct_extreme10"] in (0.0, 100.0)
 
 
 def test_every_nth_does_not_shift_when_the_oldest_checkpoints_are_deleted(tmp_path):
@@ -88,6 +111,12 @@ def test_every_nth_does_not_shift_when_the_oldest_checkpoints_are_deleted(tmp_pa
     assert chosen == [10, 60, 120, 180, 240, 300]
     later = [int(c.name) for c in every_nth(ckpts[3:], 6)]  # 10, 20, 30 deleted by the run
     assert later == [40, 60, 120, 180, 240, 300]
+
+
+def test_every_first_keeps_a_checkpoint_saved_off_the_grid(tmp_path):
+    """A run stopped at iteration 173 saves it between 170 and 180: `--every 1` keeps it."""
+    ckpts = sorted(_fake_checkpoints(tmp_path, {150: 0.0, 160: 0.0, 170: 0.0, 173: 0.0, 180: 0.0, 190: 0.0}))
+    assert [int(c.name) for c in every_nth(ckpts, 1)] == [150, 160, 170, 173, 180, 190]
 
 
 def test_curve_end_to_end_writes_rows_and_reuses_them(tmp_path, capsys):
