@@ -51,8 +51,11 @@ class RunConfig:
     """Write a checkpoint every this many iterations (and always at the end)."""
     keep_checkpoints: int = 3
     """Keep only the newest this many checkpoints."""
-    value_pairs_per_iteration: int = 512
-    """(parameters, V(s)) pairs sent to the sampler per iteration for the marginal value fit."""
+    value_pairs_per_iteration: int = 4096
+    """(parameters, V(s)) pairs sent to the sampler per iteration for the marginal value fit: the
+    paper fits Vm on every tuple of the iteration (4096); `sampler.vm_fit_steps` x
+    `sampler.vm_minibatch` = 64 x 512 then passes over them about 8 times. (It was 512: 64 passes
+    over 512 correlated pairs, re-standardized on them every iteration, made Vm noisy.)"""
     vm_plot_every: int = 20
     """Write the sampler's Vm map PNG every this many iterations (0: only at the end)."""
     actor_max_restarts: int = -1
@@ -85,6 +88,9 @@ class RunConfig:
             )
         if self.ppo.kl_stop < 0:
             raise ValueError(f"--ppo.kl-stop = {self.ppo.kl_stop} must be >= 0 (0 turns it off)")
+        if not self.ppo.behaviour_weight_max >= 1.0:
+            raise ValueError(f"--ppo.behaviour-weight-max = {self.ppo.behaviour_weight_max} must be >= 1 "
+                             "(fresh samples have weight 1)")
         if self.policy.log_std_anneal_steps < 0:
             raise ValueError(f"--policy.log-std-anneal-steps = {self.policy.log_std_anneal_steps} must be >= 0")
         if not 0.0 < self.task.shape_box_scale <= 1.0:

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import collections
+import json
 from typing import Any
 
 import numpy as np
@@ -107,6 +108,7 @@ class Learner:
             "recent_lengths": list(self.recent_lengths),
             "torch_rng": torch.get_rng_state(),
             "generator": self.generator.get_state(),
+            "numpy_rng": json.dumps(self.rng.bit_generator.state),  # picks the sampler's value pairs
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -125,3 +127,5 @@ class Learner:
         self.recent_lengths.extend(state["recent_lengths"])
         torch.set_rng_state(state["torch_rng"])
         self.generator.set_state(state["generator"])
+        if "numpy_rng" in state:  # checkpoints before it was saved resume with a fresh stream
+            self.rng.bit_generator.state = json.loads(state["numpy_rng"])

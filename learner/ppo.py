@@ -47,6 +47,15 @@ class PPOConfig:
     """Gradient-norm clip, applied to the policy's and the value net's gradients separately."""
     normalize_advantages: bool = True
     """Standardize advantages per minibatch."""
+    proximal_anchor: bool = False
+    """Decoupled PPO (Hilton et al. 2021, "Batch size-invariance for policy optimization"): clip
+    the ratio and measure the KL against the policy as it is when the update starts (the
+    proximal policy), not against the actors' behaviour policy, and weight each sample by
+    pi_prox / pi_behaviour (capped at `behaviour_weight_max`). Actors lag the learner by up to
+    `max_policy_lag` versions, so with the behaviour anchor part of each update's clip range and
+    KL budget is spent before it starts (clip fraction about 0.5 in the lower-biped runs)."""
+    behaviour_weight_max: float = 2.0
+    """Cap of the importance weight pi_prox / pi_behaviour with `proximal_anchor` (V-trace style)."""
 
 
 @dataclass
@@ -99,21 +108,25 @@ def ppo_losses(
     values: torch.Tensor,
     returns: torch.Tensor,
     cfg: PPOConfig,
+    weights: torch.Tensor | None = None,
 ) -> dict[str, torch.Tensor]:
     """Clipped surrogate (Schulman 2017 eq. 7), value MSE, entropy, KL(old||new) penalty.
 
     Shapes: `actions [M, act_dim]`, everything else `[M]`. The KL uses the k3 estimator
     `(r - 1) - log r` with `r = pi_new / pi_old` on samples from the old policy: unbiased and
-    non-negative, and it needs no old distribution parameters on the wire.
+    non-negative, and it needs no old distribution parameters on the wire. With `weights`
+    (decoupled PPO: `old_logp` is the proximal policy's, the samples the behaviour policy's),
+    the surrogate and the KL of each sample are importance-weighted by them.
     """
     logp = dist.log_prob(actions).sum(-1)
     log_ratio = logp - old_logp
     ratio = log_ratio.exp()
+    w = torch.ones_like(ratio) if weights is None else weights
     surrogate = torch.min(ratio * advantages, ratio.clamp(1 - cfg.clip, 1 + cfg.clip) * advantages)
-    policy_loss = -surrogate.mean()
+    policy_loss = -(w * surrogate).mean()
     value_loss = 0.5 * (values - returns).square().mean()
     entropy = dist.entropy().sum(-1).mean()
-    kl = ((ratio - 1) - log_ratio).mean()
+    kl = (w * ((ratio - 1) - log_ratio)).mean()
     total = policy_loss + cfg.vf_coef * value_loss - cfg.entropy_coef * entropy + cfg.kl_coef * kl
     clip_frac = ((ratio - 1).abs() > cfg.clip).float().mean()
     return {"total": total, "policy": policy_loss, "value": value_loss, "entropy": entropy, "kl": kl, "clip_frac": clip_frac}
@@ -154,6 +167,12 @@ class PPO:
     def values_of(self, obs_raw: torch.Tensor) -> torch.Tensor:
         return self.value(self.policy.normalizer(obs_raw))
 
+    @torch.no_grad()
+    def log_prob(self, obs_raw: torch.Tensor, actions: torch.Tensor, chunk: int = 8192) -> torch.Tensor:
+        """`[n]` log-probabilities of `actions [n, act_dim]` under the current policy."""
+        return torch.cat([self.policy.distribution(obs_raw[i:i + chunk]).log_prob(actions[i:i + chunk]).sum(-1)
+                          for i in range(0, obs_raw.shape[0], chunk)])
+
     def update(self, batch: Batch, generator: torch.Generator | None = None) -> dict[str, float]:
         """Normalizer update, GAE, then `epochs` passes of minibatch gradient steps."""
         cfg = self.cfg
@@ -166,6 +185,11 @@ class PPO:
         obs, actions, old_logp = flat(batch.obs), flat(batch.actions), flat(batch.logp)
         adv, returns = flat(adv), flat(returns)
         n = obs.shape[0]
+        weights = None
+        if cfg.proximal_anchor:
+            behaviour_logp = old_logp
+            old_logp = self.log_prob(obs, actions)
+            weights = (old_logp - behaviour_logp).exp().clamp(max=cfg.behaviour_weight_max)
         sums: dict[str, float] = {}
         steps = policy_steps = 0
         policy_active = True
@@ -178,7 +202,8 @@ class PPO:
                     a = (a - a.mean()) / (a.std() + 1e-8)
                 dist = self.policy.distribution(obs[idx])
                 v = self.value(self.policy.normalizer(obs[idx]))
-                losses = ppo_losses(dist, actions[idx], old_logp[idx], a, v, returns[idx], cfg)
+                losses = ppo_losses(dist, actions[idx], old_logp[idx], a, v, returns[idx], cfg,
+                                    None if weights is None else weights[idx])
                 if not torch.isfinite(losses["total"]):
                     self.skipped_updates += 1
                     continue

@@ -75,8 +75,15 @@ class Run:
         state["transport"] = self.transport.state_dict()
         sampler_state = self.sampler.state()
         if sampler_state is not None:
-            state["sampler"] = checkpoint.to_checkpointable(sampler_state)
             self.sampler.saved_state = sampler_state
+        elif self.sampler.saved_state is not None:
+            # NOTE: the sampler did not answer: the previous checkpoint's state is kept rather than
+            # none, so a resume from this checkpoint does not restart the sampler from scratch.
+            self.out.line(f"[morphmimic] sampler state unavailable at iteration {self.learner.iteration}; "
+                          "this checkpoint keeps the previous one's")
+            sampler_state = self.sampler.saved_state
+        if sampler_state is not None:
+            state["sampler"] = checkpoint.to_checkpointable(sampler_state)
         checkpoint.save(self.run_dir / "ckpt", self.learner.iteration, state, self.cfg.keep_checkpoints)
         self.last_saved = self.learner.iteration
 

@@ -32,6 +32,8 @@ class LearnerTransport:
         self.current: wire.WeightsMsg | None = None
         self.counters: collections.Counter[str] = collections.Counter()
         self.last_seq: dict[int, int] = {}
+        self.resumed = False
+        """Set by `load_state_dict`: each actor's first unroll sets its baseline, not seq 0."""
         """Highest unroll sequence number received per actor (kept across learner restarts)."""
         self.received: collections.Counter[int] = collections.Counter()
         """Valid unrolls received per actor."""
@@ -113,7 +115,7 @@ class LearnerTransport:
             return None
         # Numbering starts at 0 and, with a sequence ledger, survives actor restarts: any
         # number skipped is an unroll that was sent (or queued) and never arrived.
-        previous = self.last_seq.get(msg.actor_id, -1)
+        previous = self.last_seq.get(msg.actor_id, msg.seq - 1 if self.resumed else -1)
         if msg.seq > previous + 1:
             gap = msg.seq - previous - 1
             if self.counters["seq_gap_unrolls"] == 0:
@@ -132,14 +134,19 @@ class LearnerTransport:
         return msg
 
     def state_dict(self) -> dict:
-        """What a resumed learner needs to keep counting gaps and losses where it left off."""
+        """What a resumed learner needs to keep its counters where it left off."""
         return {
             "last_seq": {str(k): int(v) for k, v in self.last_seq.items()},
             "counters": {k: int(v) for k, v in self.counters.items()},
         }
 
     def load_state_dict(self, state: dict) -> None:
-        self.last_seq = {int(k): int(v) for k, v in state["last_seq"].items()}
+        """Counters only. The checkpoint's `last_seq` is as old as the checkpoint: the unrolls
+        received between it and the stop were trained on, not lost, and the actors' ledgers
+        number on from them, so each actor's first unroll after a resume is the new baseline
+        (otherwise every resume counted them as gaps: "gaps 49" after 9 resumes)."""
+        self.last_seq = {}
+        self.resumed = True
         self.counters.update(state["counters"])
 
     def close(self) -> None:

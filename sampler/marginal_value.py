@@ -64,8 +64,12 @@ class MarginalValue:
             layers.append(nn.Linear(width, 1))
             self.net = nn.Sequential(*layers)
         self.opt = torch.optim.Adam(self.net.parameters(), lr=lr)
-        self.probe = np.random.default_rng(seed + 1).uniform(self.low, self.high, size=(probe_points, self.dim))
-        """`[probe_points, d]` fixed uniform points: Vbar's box average and the reported Vm range."""
+        self.seed, self.probe_points = seed, probe_points
+        self.probe = self._uniform_probe()
+        """`[probe_points, d]` fixed uniform points over the box: Vbar's box average, Vm's spread
+        and the reported Vm range."""
+        self.probe_std = 0.0
+        """Std of Vm over the probe points after the last fit (value units): its spread."""
         self.mu = 0.0
         """Mean of the standardized targets (the output layer's PopArt offset), value units."""
         self.sigma = 1.0
@@ -76,6 +80,9 @@ class MarginalValue:
         self.steps = 0
         self.pairs_seen = 0
         self.last_loss = float("nan")
+
+    def _uniform_probe(self) -> np.ndarray:
+        return np.random.default_rng(self.seed + 1).uniform(self.low, self.high, size=(self.probe_points, self.dim))
 
     def normalize(self, params: np.ndarray) -> np.ndarray:
         """Map `[n, d]` parameters from the box to [-1, 1]; a zero-width dimension maps to 0."""
@@ -143,7 +150,8 @@ class MarginalValue:
                 self.opt.zero_grad(set_to_none=True)
                 loss.backward()
                 self.opt.step()
-        box_mean = float(self(self.probe).mean())
+        probe_vm = self(self.probe)
+        box_mean, self.probe_std = float(probe_vm.mean()), float(probe_vm.std())
         self.vbar += (1.0 - (1.0 - self.vbar_rate) ** steps) * (box_mean - self.vbar)
         self.steps += steps
         self.pairs_seen += m
@@ -151,21 +159,28 @@ class MarginalValue:
         return self.last_loss
 
     def temperature(self, floor: float) -> float:
-        """|Vbar| floored: the scale of exp(-k Vm / Vbar).
+        """The scale of exp(-k Vm / Vbar): |Vbar|, but at least Vm's spread over the box (its std
+        on the probe points) and `floor`.
 
         NOTE: the paper assumes Vm, Vbar > 0 (bell-shaped rewards, discount < 1), which fails
         early in training or with penalty rewards. A negative Vbar would flip the density and
-        favour the best-controlled shapes, so its magnitude is used; the floor keeps k/|Vbar|
-        finite when the average passes through 0.
+        favour the best-controlled shapes, so its magnitude is used. When |Vbar| is small next to
+        Vm's spread (an untrained value net, or the average passing through 0), k * dVm / |Vbar|
+        is huge and Metropolis-Hastings turns into a hill-climb: the buffer becomes a few dozen
+        copies of the worst shapes (acceptance 0.02, 53 distinct of 1000 in a 5-D test). The
+        spread bounds the density ratio between shapes 2 std apart to about exp(4k). Whenever
+        |Vbar| exceeds the spread (a trained policy: Vbar 228, std about 100) this is the paper's
+        density unchanged.
         """
-        return max(abs(self.vbar), floor)
+        return max(abs(self.vbar), self.probe_std, floor)
 
     def state(self) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
         """(meta of primitives, arrays) holding the net, Adam's moments, the probe points, the
         standardization and Vbar."""
         meta = {"hidden": list(self.hidden), "mu": self.mu, "sigma": self.sigma, "vbar": self.vbar,
                 "fitted": self.fitted, "steps": self.steps, "pairs_seen": self.pairs_seen,
-                "last_loss": self.last_loss}
+                "last_loss": self.last_loss, "probe_std": self.probe_std,
+                "low": self.low.tolist(), "high": self.high.tolist()}
         arrays = {f"net/{k}": v.detach().numpy().copy() for k, v in self.net.state_dict().items()}
         arrays["probe"] = self.probe.copy()
         for i, st in self.opt.state_dict()["state"].items():
@@ -173,8 +188,14 @@ class MarginalValue:
                 arrays[f"adam/{i}/{key}"] = torch.as_tensor(val).detach().numpy().copy()
         return meta, arrays
 
-    def load_state(self, meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
-        """Restore what `state` returned; raises ValueError if the layer sizes differ."""
+    def load_state(self, meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> bool:
+        """Restore what `state` returned; raises ValueError if the layer sizes differ.
+
+        The state may come from another box (a curriculum resumed at a new `shape_box_scale`):
+        the net's input layer is re-expressed for this box so Vm keeps its value at every shape,
+        and the probe points are drawn over this box (Vbar is Vm's average over the box being
+        trained). Returns True when the box changed. A state from before the box was saved
+        cannot be re-expressed; its probe points are redrawn over this box."""
         if tuple(meta["hidden"]) != self.hidden:
             raise ValueError(f"saved Vm has hidden sizes {meta['hidden']}, this one {list(self.hidden)}; "
                              "construct it with the saved vm_hidden")
@@ -191,3 +212,28 @@ class MarginalValue:
         self.mu, self.sigma, self.vbar = float(meta["mu"]), float(meta["sigma"]), float(meta["vbar"])
         self.fitted, self.steps = bool(meta["fitted"]), int(meta["steps"])
         self.pairs_seen, self.last_loss = int(meta["pairs_seen"]), float(meta["last_loss"])
+        self.probe_std = float(meta.get("probe_std", 0.0))
+        if "low" not in meta:  # a state from before the box was saved: its box is unknown
+            self.probe = self._uniform_probe()
+            return False
+        old_low, old_high = np.asarray(meta["low"], np.float64), np.asarray(meta["high"], np.float64)
+        if old_low.shape != self.low.shape:
+            raise ValueError(f"saved Vm is over {old_low.shape[0]} parameters, this one over {self.dim}")
+        if np.array_equal(old_low, self.low) and np.array_equal(old_high, self.high):
+            return False
+        self._reexpress_inputs(old_low, old_high)
+        self.probe = self._uniform_probe()
+        return True
+
+    def _reexpress_inputs(self, old_low: np.ndarray, old_high: np.ndarray) -> None:
+        """Fold the map from this box's normalized coordinates to the old box's into the first
+        linear layer (x_old = a * x_new + b per parameter), so every shape keeps its Vm."""
+        old_span, span = old_high - old_low, self.high - self.low
+        safe_old = np.where(old_span > 0, old_span, 1.0)
+        a = np.where((old_span > 0) & (span > 0), span / safe_old, 0.0)
+        b = np.where(old_span > 0, (2.0 * (self.low - old_low) + np.where(span > 0, span, 0.0)) / safe_old - 1.0, 0.0)
+        first: nn.Linear = self.net[0]
+        with torch.no_grad():
+            w = first.weight.double()
+            first.bias.add_((w @ torch.as_tensor(b)).float())
+            first.weight.copy_((w * torch.as_tensor(a)).float())

@@ -208,10 +208,10 @@ class ShapeSampler:
         if list(meta["names"]) != list(self.space.names):
             raise ValueError(f"sampler state is for parameters {meta['names']}, "
                              f"this sampler has {list(self.space.names)}")
-        self.vm.load_state(meta["vm"], {k[3:]: v for k, v in arrays.items() if k.startswith("vm/")})
+        box_changed = self.vm.load_state(meta["vm"], {k[3:]: v for k, v in arrays.items() if k.startswith("vm/")})
         # NOTE: a run may resume on another box (a curriculum stage, `--task.shape-box-scale`):
-        # its buffered and pending shapes are moved into this one (Vm, fitted on box-normalized
-        # inputs, re-fits to the new box as pairs arrive).
+        # Vm keeps its values (re-expressed for the new box) and pending shapes are moved into the
+        # new box; the buffer is refilled at once below, since the old one covers only the old box.
         box = lambda a: np.clip(a.astype(np.float64).reshape(-1, self.space.dim), self.space.low_array, self.space.high_array)  # noqa: E731
         self.buffer = box(arrays["buffer"])
         self._order = arrays["order"].astype(np.int64)
@@ -227,6 +227,9 @@ class ShapeSampler:
         self.fit_s = float(meta["fit_s"])
         self.rng = np.random.default_rng()
         self.rng.bit_generator.state = json.loads(meta["rng"])
+        if box_changed:
+            self.refill()
+            self.last_refill_iteration = self.last_tick
 
 
 def state_to_torch(state: dict[str, Any]) -> dict[str, Any]:

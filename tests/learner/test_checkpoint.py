@@ -47,3 +47,20 @@ def test_foreign_file_gets_a_clear_error(tmp_path):
     (tmp_path / "x.pt").write_text("not a checkpoint")
     with pytest.raises(checkpoint.CheckpointError, match="x.pt"):
         checkpoint.load(tmp_path / "x.pt")
+
+
+def test_learner_state_brings_back_the_stream_that_picks_value_pairs(tmp_path):
+    """Through a real checkpoint file (weights_only): a resumed learner picks the same (shape,
+    V) pairs for the sampler as the one that kept running."""
+    import dataclasses
+
+    from learner.learner import Learner
+    from learner.presets import PRESETS
+
+    cfg = dataclasses.replace(PRESETS["lower_biped-tiny"][1], name="tiny")
+    a = Learner(cfg)
+    a.rng.integers(0, 100, size=17)  # the stream has moved on
+    checkpoint.save(tmp_path, 1, a.state_dict(), keep=1)
+    b = Learner(dataclasses.replace(cfg, seed=cfg.seed + 1))
+    b.load_state_dict(torch.load(tmp_path / "00000001" / "state.pt", weights_only=True))
+    np.testing.assert_array_equal(a.rng.choice(4096, 512, replace=False), b.rng.choice(4096, 512, replace=False))

@@ -16,6 +16,7 @@ from pathlib import Path
 import msgpack
 import numpy as np
 import pytest
+import torch
 import zmq
 
 from actors.config import ActorConfig
@@ -145,6 +146,9 @@ def test_sampler_outage_degrades_then_recovers_with_its_state(cluster, tmp_path)
             ray.get(handle.stop.remote())  # the service goes silent: clients time out
             seen["down_at"] = it
         if "down_at" in seen and "restarted_at" not in seen and metrics["faults/actor_sampler_outages"] > 0:
+            # Checkpoints written while it is silent keep the previous one's sampler state.
+            latest = checkpoint.list_checkpoints(run.run_dir / "ckpt")[-1]
+            seen["ckpt_has_sampler"] = "sampler" in torch.load(latest / checkpoint.FILE, weights_only=True)
             ray.kill(handle, no_restart=False)  # Ray brings it back, empty, on a new port
             seen["restarted_at"] = it
         if metrics["faults/sampler_restores"] >= 1:
@@ -156,6 +160,8 @@ def test_sampler_outage_degrades_then_recovers_with_its_state(cluster, tmp_path)
     assert "restarted_at" in seen, f"actors never counted the outage: {seen}"
     assert "restored_at" in seen, f"the restarted sampler never got its state back: {seen}"
     assert seen["vm_pairs"] > 0  # the restored marginal value kept what it had learned
+    assert seen["ckpt_has_sampler"]
+    assert "sampler state unavailable" in next(tmp_path.glob("*/log.txt")).read_text()
 
 
 def _hostile_frames(obs_dim: int = 12) -> list[tuple[str, list[bytes]]]:

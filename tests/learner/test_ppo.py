@@ -138,6 +138,41 @@ def test_kl_stop_bounds_how_far_one_update_moves_the_policy():
     torch.testing.assert_close(values[0.02], values[0.0])
 
 
+def test_proximal_anchor_measures_only_this_updates_movement_on_stale_data():
+    """Actors' data from an older policy version: with the behaviour anchor the update starts
+    clipped and with KL > 0 before any step (lr 0: the policy never moves); with the proximal
+    anchor (decoupled PPO) both are 0 until the update moves the policy."""
+    torch.manual_seed(0)
+    cfg = PolicyConfig(hidden=(16, 16))
+    policy, value = GaussianPolicy(3, 2, cfg), ValueNet(3, cfg)
+    batch = _random_batch(policy)
+    with torch.no_grad():  # the learner has moved on since the actors acted
+        for p in policy.mean_net.parameters():
+            p.add_(0.3 * torch.randn_like(p))
+    out = {}
+    for anchor in (False, True):
+        ppo = PPO(policy, value, PPOConfig(minibatch=16, epochs=1, lr=0.0, proximal_anchor=anchor))
+        out[anchor] = ppo.update(batch)
+    assert out[False]["clip_frac"] > 0.1 and out[False]["kl"] > 0.01
+    assert out[True]["clip_frac"] == 0.0 and out[True]["kl"] == pytest.approx(0.0, abs=1e-7)
+
+
+def test_proximal_anchor_is_plain_ppo_on_fresh_data():
+    """Data from the current policy: the weights are 1 and the anchor is the behaviour policy,
+    so both variants take the same steps."""
+    params = {}
+    for anchor in (False, True):
+        torch.manual_seed(0)
+        cfg = PolicyConfig(hidden=(16, 16))
+        policy, value = GaussianPolicy(3, 2, cfg), ValueNet(3, cfg)
+        batch = _random_batch(policy)
+        PPO(policy, value, PPOConfig(minibatch=16, epochs=3, lr=1e-3, proximal_anchor=anchor)).update(
+            batch, torch.Generator().manual_seed(1))
+        params[anchor] = [p.detach().clone() for p in policy.parameters()]
+    for a, b in zip(params[False], params[True]):
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
+
+
 def test_variance_controller_anneals_the_mean_log_std_and_keeps_the_spread():
     """UniCon's policy variance controller: mean log sigma moves linearly, all components alike."""
     cfg = PolicyConfig(hidden=(8,), init_log_std=-1.0, final_log_std=-2.0, log_std_anneal_steps=1000, learn_log_std=False)

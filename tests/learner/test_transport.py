@@ -59,6 +59,29 @@ def test_hostile_unroll_channel_input_is_counted_by_kind():
         t.close()
 
 
+def test_a_resumed_learner_keeps_its_counters_but_counts_no_gap_for_unrolls_after_its_checkpoint():
+    """The checkpoint was written when actor 1 had sent seq 10; the learner trained on 11-19 and
+    stopped; the actor's ledger numbers on from 20. Only a gap after that baseline counts."""
+    before = LearnerTransport("127.0.0.1", obs_dim=4, act_dim=2, n_params=1)
+    before.last_seq[1] = 10
+    before.counters["seq_gap_unrolls"] = 3
+    state = before.state_dict()
+    before.close()
+    t = LearnerTransport("127.0.0.1", obs_dim=4, act_dim=2, n_params=1)
+    t.load_state_dict(state)
+    push = zmq.Context.instance().socket(zmq.PUSH)
+    push.setsockopt(zmq.LINGER, 1000)
+    push.connect(t.endpoints["unrolls"])
+    try:
+        for seq in (20, 21, 23):
+            push.send_multipart(wire.encode(_unroll(seq)))
+        assert [u.seq for u in _drain(t)] == [20, 21, 23]
+        assert t.counters["seq_gap_unrolls"] == 3 + 1  # seq 22 only
+    finally:
+        push.close()
+        t.close()
+
+
 def test_snapshot_service_answers_garbage_with_errors_and_serves_weights():
     t = LearnerTransport("127.0.0.1", obs_dim=4, act_dim=2, n_params=1)
     dealer = zmq.Context.instance().socket(zmq.DEALER)

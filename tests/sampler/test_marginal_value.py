@@ -47,7 +47,40 @@ def test_negative_average_gives_positive_floored_temperature():
     assert vm.vbar < 0
     assert vm.temperature(1e-3) == pytest.approx(-vm.vbar)
     vm.vbar = 1e-9
+    vm.probe_std = 0.0
     assert vm.temperature(0.5) == 0.5
+
+
+def test_temperature_is_at_least_vms_spread_when_the_average_is_near_zero():
+    """Returns centred on 0 (an untrained value net): |Vbar| is about 0 but Vm spans tens of
+    units; the temperature is Vm's std over the box, so MH does not collapse onto the worst shapes."""
+    rng = np.random.default_rng(4)
+    vm = MarginalValue(LOW, HIGH, seed=4)
+    p = rng.uniform(LOW, HIGH, size=(2048, 2))
+    vm.fit(p, truth(p) - 73.75, steps=200, minibatch=128, rng=rng)
+    assert abs(vm.vbar) < 5.0
+    spread = float(vm(vm.probe).std())
+    assert spread > 8.0
+    assert vm.temperature(1e-3) == pytest.approx(spread) and vm.temperature(1e-3) > abs(vm.vbar)
+
+
+def test_state_resumed_on_another_box_keeps_vm_at_every_shape():
+    """A curriculum resumes on a box 4x smaller and back on the whole box: Vm's inputs are
+    normalized to the box, so the net is re-expressed; the probe points move into the new box."""
+    rng = np.random.default_rng(6)
+    a = MarginalValue(LOW, HIGH, seed=6)
+    p = rng.uniform(LOW, HIGH, size=(1024, 2))
+    a.fit(p, truth(p), steps=100, minibatch=128, rng=rng)
+    small_low, small_high = np.array([1.0, -0.25]), np.array([1.375, 0.25])
+    inside = rng.uniform(small_low, small_high, size=(200, 2))
+    b = MarginalValue(small_low, small_high, seed=6)
+    assert b.load_state(*a.state()) is True
+    np.testing.assert_allclose(b(inside), a(inside), rtol=1e-5, atol=1e-3)
+    assert np.all((b.probe >= small_low) & (b.probe <= small_high))
+    c = MarginalValue(LOW, HIGH, seed=6)
+    assert c.load_state(*b.state()) is True
+    np.testing.assert_allclose(c(p), a(p), rtol=1e-5, atol=1e-3)
+    assert MarginalValue(LOW, HIGH, seed=6).load_state(*c.state()) is False
 
 
 def test_state_round_trip_continues_identically():

@@ -142,5 +142,9 @@ def test_state_resumed_on_a_wider_or_narrower_box_keeps_its_shapes_inside_the_bo
     assert np.all(p >= narrow_space.low_array) and np.all(p <= narrow_space.high_array)
     back = ShapeSampler(FAST, SPACE)
     back.load_state_dict(narrow.state_dict())
-    run(back, range(4, 6))  # refills over the whole box again
+    # Refilled at once over the whole box: the narrow buffer is not served for p_mcmc iterations.
     assert back.buffer[:, 0].min() < 0.9 < 1.1 < back.buffer[:, 0].max()
+    assert back.generation == narrow.generation + 1
+    same = ShapeSampler(FAST, SPACE)
+    same.load_state_dict(back.state_dict())
+    assert same.generation == back.generation  # the same box: no refill
