@@ -17,6 +17,8 @@ another body); what changes is:
 
 from __future__ import annotations
 
+import dataclasses
+
 from dataclasses import dataclass
 
 import mujoco
@@ -254,6 +256,17 @@ def character_feet(character) -> tuple[str, ...]:
     return tuple(getattr(character, "foot_geoms", ()) or ())
 
 
+def swim_path_scaled(clip: Clip, ratio: float) -> Clip:
+    """A swimmer's clip with its root path scaled by `ratio` (body length over the base's) about
+    the first frame: a body twice as long covers twice the distance per stroke cycle. This is
+    the swimmer's counterpart of the walkers' stride scaling, and what the task's target
+    velocity (v0 times the same length ratio, reward normalization) and its fall rule (the root
+    within so many body lengths of the reference root) assume."""
+    if not np.isfinite(ratio) or ratio <= 0:
+        raise ValueError(f"length ratio {ratio!r} must be a finite number > 0")
+    return dataclasses.replace(clip, root_pos=clip.root_pos[0] + ratio * (clip.root_pos - clip.root_pos[0]))
+
+
 def play_on(clip: Clip, character, base_character=None, cfg: RetargetConfig = RetargetConfig(),
             contacts: ContactPhases | None = None) -> CharacterMotion:
     """The clip retargeted onto `character` (a shaped `common.characters.Character`).
@@ -263,12 +276,13 @@ def play_on(clip: Clip, character, base_character=None, cfg: RetargetConfig = Re
     """
     feet = character_feet(character)
     ees = tuple(getattr(character, "end_effector_bodies", ()))
-    if not feet:
-        return CharacterMotion.from_clip(clip, character.model, ees)
     if base_character is None:
         from common.characters import load_character
 
         base_character = load_character(character.preset)
+    if not feet:
+        return CharacterMotion.from_clip(swim_path_scaled(clip, character.length_m / base_character.length_m),
+                                         character.model, ees)
     if contacts is None:
         contacts = contact_phases(clip, base_character.model, feet, cfg)
     ratio = float(np.mean(character.leg_lengths_m) / np.mean(base_character.leg_lengths_m))

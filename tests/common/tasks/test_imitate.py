@@ -71,6 +71,22 @@ def test_swimmer_far_from_its_reference_terminates() -> None:
     assert env.step(np.zeros(env.act_dim))[2]
 
 
+def test_a_swimmers_reference_covers_the_distance_its_target_velocity_asks_for() -> None:
+    """A short and a long fish: the reference root moves at the target velocity (v0 times the
+    body-length ratio), so following the target keeps the swimmer near the reference root, which
+    the fall rule needs (the reference used to move at v0 whatever the length)."""
+    env = make_env(TaskConfig(name="fish", control_hz=30.0, sim_hz=480.0), seed=0)
+    speeds = {}
+    for name, shape in (("short", env.space.low_array), ("long", env.space.high_array)):
+        env.reset(0, shape)
+        cycle = env.motion.duration_s
+        q = env._ref_qpos(np.array([0.0, cycle]))
+        ref_speed = np.linalg.norm(q[1, :2] - q[0, :2]) / cycle
+        speeds[name] = ref_speed
+        assert ref_speed == pytest.approx(np.linalg.norm(env.target_velocity()), rel=0.02), name
+    assert speeds["long"] > 2.0 * speeds["short"]
+
+
 def test_fixed_shape_space_is_the_base_shape() -> None:
     env = make_env(dataclasses.replace(CFG, vary_shape=False), seed=0)
     np.testing.assert_array_equal(env.space.low_array, env.space.high_array)
