@@ -87,9 +87,11 @@ class RolloutWorker:
                 o, r, term, trunc, info = env.step(act[i])
                 diverged = bool(info.get("diverged")) or not np.isfinite(o).all() or not np.isfinite(r)
                 if diverged:
-                    # The simulator failed: cut the episode (bootstrap from the last good state).
+                    # The simulator failed: the episode ends with no future (METHOD.md A lists
+                    # simulation failure with the falls among the terminations), so the policy
+                    # learns to avoid what blows the simulation up rather than being paid its value.
                     divergences += 1
-                    o, r, term, trunc = self._obs[i], 0.0, False, True
+                    o, r, term, trunc = self._obs[i], 0.0, True, False
                 next_obs[t, i] = o
                 rewards[t, i] = r
                 terminated[t, i], truncated[t, i] = term, trunc and not term

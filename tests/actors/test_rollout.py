@@ -1,5 +1,5 @@
 """The rollout worker on a real MuJoCo environment: one batched forward per step, unroll
-shapes, and a simulator divergence turned into a truncated, counted, reset episode."""
+shapes, and a simulator divergence turned into a terminated, counted, reset episode."""
 
 from __future__ import annotations
 
@@ -30,11 +30,12 @@ def test_unroll_shapes_and_episode_statistics():
     assert np.isfinite(msg.obs).all() and msg.seq == 2
 
 
-def test_divergence_truncates_resets_and_is_counted():
+def test_divergence_terminates_resets_and_is_counted():
     w = _worker(envs=2, T=5)
     w.envs[0].model.actuator_gear[:, 0] = 1e30  # a torque MuJoCo cannot integrate
     msg = w.collect()
     assert msg.divergences >= 1
-    assert msg.truncated[:, 0].any()
+    assert msg.terminated[:, 0].any() and not msg.truncated[:, 0].any()  # no bootstrap from a blow-up
     assert np.isfinite(msg.next_obs).all() and np.isfinite(msg.rewards).all()
-    assert msg.divergences == int(msg.truncated[:, 0].sum())
+    assert msg.divergences == int(msg.terminated[:, 0].sum())
+    assert not msg.terminated[:, 1].any()
