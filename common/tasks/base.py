@@ -55,6 +55,11 @@ class TaskConfig:
     """Shape tasks: actions are clipped to [-action_clip, action_clip] before scaling."""
     random_start_phase: bool = True
     """Shape tasks: start each episode at a uniformly random phase of the clip (else at 0)."""
+    pd_gains_follow_torque: bool = False
+    """Shape tasks: scale each shape's PD gains and rotor inertia by the factor its torque limits
+    got (`common.characters.operator.gains_follow_torque_limits`), so small bodies are not
+    driven into their limits by the base's stiffness. False: the base's gains on every shape
+    (METHOD.md A)."""
     shin_contact_is_fall: bool = True
     """Walkers: False lets the segment above each foot (a quadruped's shank) touch the floor
     without it counting as a fall; the trunk, head and thighs still end the episode."""

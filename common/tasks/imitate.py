@@ -29,6 +29,7 @@ import mujoco
 import numpy as np
 
 from common.characters import CharacterFactory
+from common.characters.operator import gains_follow_torque_limits
 from common.params import ParamSpace
 from common.tasks import references, rewards
 from common.tasks.base import TaskConfig, step_physics
@@ -126,12 +127,17 @@ class ImitateEnv:
             self._cache.move_to_end(key)
         else:
             ch = self._factory.make(shape)
+            self._gains(ch)
             motion = references.play(ch, self.clip_id, self.timestep_s)
             norm = rewards.Normalization.from_legs(self._legs(ch), self._base_legs, ch.mass_kg, self.base.mass_kg)
             self._cache[key] = (ch, motion, norm)
             while len(self._cache) > max(1, self.cfg.character_cache):
                 self._cache.popitem(last=False)
         self._set_character(*self._cache[key])
+
+    def _gains(self, ch) -> None:
+        if self.cfg.pd_gains_follow_torque:
+            gains_follow_torque_limits(ch.model, self.base.model)
 
     def _set_character(self, ch, motion, norm) -> None:
         self.character, self.motion, self.norm = ch, motion, norm
@@ -357,6 +363,7 @@ class ImitateEnv:
         old_root = self.ref_q[0][0:3].copy()
         self._cache.clear()  # NOTE: morph re-shapes the spec in place: cached characters share it
         ch, self.data = morph(self.character, shape, self.data)
+        self._gains(ch)
         motion = references.play(ch, self.clip_id, self.timestep_s)
         norm = rewards.Normalization.from_legs(self._legs(ch), self._base_legs, ch.mass_kg, self.base.mass_kg)
         self._set_character(ch, motion, norm)

@@ -87,6 +87,34 @@ def test_a_swimmers_reference_covers_the_distance_its_target_velocity_asks_for()
     assert speeds["long"] > 2.0 * speeds["short"]
 
 
+def test_pd_gains_follow_the_torque_limits_so_a_small_body_is_not_saturated() -> None:
+    """The smallest lower biped gets 1.5% of the base's torque limits. With the base's gains its
+    PD sits at the limit on about a quarter of its actuators under zero actions; with the gains
+    scaled by the same factor on none of them. The base shape is unchanged either way, and a
+    morph keeps the scaling."""
+    def saturated(env, shape) -> float:
+        env.reset(0, shape)
+        at_limit = []
+        for _ in range(20):
+            env.step(np.zeros(env.act_dim))
+            at_limit.append(np.mean(np.abs(env.data.actuator_force) >= 0.999 * env.model.actuator_forcerange[:, 1]))
+        return float(np.mean(at_limit))
+
+    fixed = make_env(CFG, seed=0)
+    scaled = make_env(dataclasses.replace(CFG, pd_gains_follow_torque=True), seed=0)
+    small = fixed.space.low_array
+    assert saturated(fixed, small) > 0.1
+    assert saturated(scaled, small) < 0.02
+    f = scaled.model.actuator_forcerange[0, 1] / scaled.base.model.actuator_forcerange[0, 1]
+    assert f < 0.05
+    np.testing.assert_allclose(scaled.model.actuator_gainprm[:, 0], f * scaled.base.model.actuator_gainprm[:, 0])
+    np.testing.assert_allclose(scaled.model.dof_armature, f * scaled.base.model.dof_armature)
+    scaled.reset(0, scaled.space.default_array)
+    np.testing.assert_array_equal(scaled.model.actuator_gainprm, scaled.base.model.actuator_gainprm)
+    scaled.set_shape(small)
+    np.testing.assert_allclose(scaled.model.actuator_biasprm[:, 1:3], f * scaled.base.model.actuator_biasprm[:, 1:3])
+
+
 def test_fixed_shape_space_is_the_base_shape() -> None:
     env = make_env(dataclasses.replace(CFG, vary_shape=False), seed=0)
     np.testing.assert_array_equal(env.space.low_array, env.space.high_array)
