@@ -60,6 +60,11 @@ def _shape_preset(character: str, parameterization: str, plot: tuple[str, str], 
     on a fork of the lower-biped curriculum run at 5.3 M steps (box x0.5, gamma 0.99): after
     1.46 M more steps each, mean training episode 78 vs 67 control steps and mean time up on 100
     shapes of that box 5.1 s vs 3.1 s (`morphmimic evaluate --box-scale 0.5 --episode-s 30 --seed 7`).
+    PD gains follow each shape's torque limits (`pd_gains_follow_torque`): with the base's gains
+    the smallest bodies' PD sat at its limits. Measured on a fork of the lower-biped curriculum
+    run at 41.0 M steps (whole box; 38.3% fall-down on 300 shapes, 30 s, at the fork): 3.85 M steps
+    later, at the same iteration, 25.3% with the gains scaled against 44.0% for the run that kept
+    the base's gains (smallest quarter of shapes by volume: 60% at the fork, then 36% against 72%).
     Variants for the ablations:
     "uniform" (k = 0), "nonorm" (no reward normalization), "fixedshape" (the base shape only)."""
     from common.policy import PolicyConfig
@@ -70,6 +75,7 @@ def _shape_preset(character: str, parameterization: str, plot: tuple[str, str], 
         name=character, control_hz=30.0, sim_hz=480.0, episode_s=30.0, parameterization=parameterization,
         reward_normalization=variant != "nonorm", vary_shape=variant != "fixedshape",
         max_root_deviation=1.0 if swimmer else 0.0, shin_contact_is_fall=character != "quadruped",
+        pd_gains_follow_torque=True,
     )
     return RunConfig(
         name=f"{character}-{variant}" if variant else character,

@@ -59,7 +59,7 @@ class TaskConfig:
     """Shape tasks: scale each shape's PD gains and rotor inertia by the factor its torque limits
     got (`common.characters.operator.gains_follow_torque_limits`), so small bodies are not
     driven into their limits by the base's stiffness. False: the base's gains on every shape
-    (METHOD.md A)."""
+    (METHOD.md A). The shape presets turn it on (measured in `learner.presets`)."""
     shin_contact_is_fall: bool = True
     """Walkers: False lets the segment above each foot (a quadruped's shank) touch the floor
     without it counting as a fall; the trunk, head and thighs still end the episode."""
