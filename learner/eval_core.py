@@ -120,6 +120,7 @@ def run_episode(env, policy: GaussianPolicy, params: np.ndarray, seed: int,
     obs, _ = env.reset(seed, params)
     ret = task = imit = 0.0
     fell = diverged = False
+    fall_bodies: list[str] = []
     k = 0
     while True:
         action, _ = policy.act(obs[None], deterministic=True)
@@ -133,9 +134,10 @@ def run_episode(env, policy: GaussianPolicy, params: np.ndarray, seed: int,
         if term or trunc:
             fell = bool(term and info.get("fell", True))
             diverged = bool(info.get("diverged"))
+            fall_bodies = list(info.get("fall_bodies", [])) if fell else []
             break
     return {"return": ret, "task_reward": task, "imitation_reward": imit, "steps": k, "fell": fell,
-            "diverged": diverged, "seconds": k / env.cfg.control_hz}
+            "diverged": diverged, "seconds": k / env.cfg.control_hz, "fall_bodies": fall_bodies}
 
 
 _WORKER: dict[str, Any] = {}
@@ -182,11 +184,16 @@ def evaluate(loaded: Loaded, shapes: np.ndarray, episode_s: float, seed: int, wo
 def summarize(results: list[dict], space, n_shape: int) -> dict[str, Any]:
     """Task achievement (mean cumulative task reward), fall-down %, mean return and the
     fall-down % on the most extreme 10% of shapes (by `extremeness`). An episode the simulator
-    diverged in ended before its length too, so it counts as a fall (and in `diverged`)."""
+    diverged in ended before its length too, so it counts as a fall (and in `diverged`).
+    `falls_by_body`: how many falls each body's floor contact ended (a fall may name several)."""
     params = np.array([r["params"] for r in results])
     fell = np.array([r["fell"] or r["diverged"] for r in results], dtype=bool)
     ext = extremeness(space, params, n_shape)
     top = np.argsort(ext)[-max(1, len(results) // 10):]
+    by_body: dict[str, int] = {}
+    for r in results:
+        for name in r.get("fall_bodies", []):
+            by_body[name] = by_body.get(name, 0) + 1
     return {
         "shapes": len(results),
         "task_achievement": float(np.mean([r["task_reward"] for r in results])),
@@ -195,4 +202,5 @@ def summarize(results: list[dict], space, n_shape: int) -> dict[str, Any]:
         "mean_seconds": float(np.mean([r["seconds"] for r in results])),
         "diverged": int(sum(r["diverged"] for r in results)),
         "fall_down_pct_extreme10": float(100.0 * fell[top].mean()),
+        "falls_by_body": dict(sorted(by_body.items(), key=lambda kv: (-kv[1], kv[0]))),
     }

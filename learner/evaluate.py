@@ -7,7 +7,8 @@ reproduce") on one checkpoint.
 
 Prints task achievement (mean cumulative task reward R_task) and the fall-down percentage, and
 writes into `--out` (default `<checkpoint dir>/eval`): `results.json` (summary + one record per
-shape: parameters, return, task reward, fell, seconds, Vm), `summary.md`, `map_return.png`
+shape: parameters, return, task reward, fell, the bodies whose floor contact ended it, seconds,
+Vm), `summary.md` (with the falls counted by body), `map_return.png`
 (measured return binned over two shape parameters), `map_vm.png` (the sampler's marginal value
 from the checkpoint), `best.png` / `worst.png` strips (and GIFs with `--gif`).
 """
@@ -87,6 +88,8 @@ def markdown(name: str, summary: dict, args: argparse.Namespace, files: list[str
         f"| mean episode length (s) | {s['mean_seconds']:.1f} |",
         f"| return map min/mean over the grid | {s.get('return_map_uniformity', float('nan')):.2f} |",
         f"| simulator divergences | {s['diverged']} |", "",
+        *([("Falls by the body whose floor contact ended them (a fall may name several): "
+            + ", ".join(f"{b} {n}" for b, n in s["falls_by_body"].items())), ""] if s.get("falls_by_body") else []),
         "Paper (Won & Lee 2019, 300 shapes, 30 s): lower-body biped 369.5 and 20.7% fall-down "
         "(218.9 / 54.1% without reward normalization); quadruped 427.5 and 9.3% (338.2 / 11.1%).", "",
         "Files: " + ", ".join(f"`{Path(f).name}`" for f in files), "",

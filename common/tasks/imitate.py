@@ -326,6 +326,17 @@ class ImitateEnv:
                 return True
         return False
 
+    def fall_bodies(self) -> list[str]:
+        """The names of the bodies whose contacts end the episode as a fall now (sorted; empty
+        for a swimmer, whose fall is its root's distance): why a shape fell, for evaluation."""
+        d, names = self.data, set()
+        for i in range(d.ncon):
+            c = d.contact[i]
+            for b in (self.model.geom_bodyid[c.geom1], self.model.geom_bodyid[c.geom2]):
+                if not self.allowed_contact[b]:
+                    names.add(self.model.body(int(b)).name)
+        return sorted(names)
+
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
         a = np.clip(np.nan_to_num(np.asarray(action, dtype=np.float64)), -self.cfg.action_clip, self.cfg.action_clip)
         self.data.ctrl[:] = self.ref_joints[1] + self.cfg.action_scale * a
@@ -342,6 +353,8 @@ class ImitateEnv:
         obs = self._obs(body_frame)
         truncated = self.k >= self.cfg.episode_steps and not fell
         info = {"diverged": False, "fell": fell, "task_reward": r_task, "imitation_reward": r_imit, "reg_reward": r_reg}
+        if fell and not self.character.is_swimmer:
+            info["fall_bodies"] = self.fall_bodies()
         return obs, r_imit + r_task + r_reg, fell, truncated, info
 
     def _obs_safe(self) -> np.ndarray:

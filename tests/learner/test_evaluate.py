@@ -37,6 +37,7 @@ def test_evaluate_writes_json_maps_markdown_and_strips(tmp_path: Path, capsys) -
     assert len(res["shapes"]) == 3
     for r in res["shapes"]:
         assert len(r["params"]) == len(res["meta"]["param_names"]) and 0 < r["seconds"] <= 0.5 + 1e-9
+        assert bool(r["fall_bodies"]) == r["fell"]  # a walker's fall names the bodies that touched the floor
     assert 0.0 <= res["summary"]["fall_down_pct"] <= 100.0
     assert "fall-down %" in (out / "summary.md").read_text()
     for png in ("map_return.png", "best.png", "worst.png"):
@@ -84,10 +85,12 @@ def test_summary_counts_falls_divergences_and_the_extreme_tenth() -> None:
     base = space.default_array
     xs = np.linspace(base[0], space.high_array[0], 20)
     results = [{"params": [x, *base[1:]], "fell": i >= 18, "diverged": i == 1, "return": 1.0, "task_reward": 2.0,
-                "seconds": 3.0} for i, x in enumerate(xs)]
+                "seconds": 3.0, "fall_bodies": ["Spine", "TibiaL"][: i - 17] if i >= 18 else []}
+               for i, x in enumerate(xs)]
     s = eval_core.summarize(results, space, 2)
     assert s["fall_down_pct"] == pytest.approx(15.0)
     assert s["fall_down_pct_extreme10"] == 100.0 and s["diverged"] == 1
+    assert s["falls_by_body"] == {"Spine": 2, "TibiaL": 1}
 
 
 def test_evaluate_box_scale_draws_shapes_from_the_shrunk_box(tmp_path: Path, capsys) -> None:

@@ -52,6 +52,14 @@ def test_lying_on_the_floor_is_a_fall() -> None:
     mujoco.mj_forward(env.model, env.data)
     _, _, terminated, truncated, info = env.step(np.zeros(env.act_dim))
     assert terminated and not truncated and info["fell"]
+    assert info["fall_bodies"] == ["FemurR"]  # on its right side: the thigh is on the floor, the feet do not count
+
+
+def test_standing_on_the_feet_names_no_fall_body() -> None:
+    env = make_env(CFG, seed=0)
+    env.reset(0, env.space.default_array)
+    _, _, terminated, _, info = env.step(np.zeros(env.act_dim))
+    assert not terminated and "fall_bodies" not in info and env.fall_bodies() == []
 
 
 def test_horizon_truncates_without_terminating() -> None:
