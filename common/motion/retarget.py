@@ -8,7 +8,11 @@ another body); what changes is:
    (the horizontal path is scaled about the first frame, so strides fit the legs);
 2. a per-frame vertical root offset that puts the *highest* foot in contact on the floor
    (contact phases come from the clip on the base character); between contact phases the
-   offset is interpolated in time, which keeps jumps and flips' flight arcs;
+   offset is interpolated in time, which keeps jumps and flips' flight arcs. With unequal
+   legs the highest foot of one contact set can sit far above that of the next (a quadruped's
+   two diagonal pairs), and the root would drop by the difference within a frame or two;
+   `RetargetConfig.root_height = "foot_tracks"` follows each foot's in-contact height through
+   its own swing instead, so the offset is continuous (`root_offsets`);
 3. a leg pose solve where a foot is still below the floor (the longer leg of an asymmetric
    body, or a swing foot of a long-legged one): damped least squares on that leg's joints
    with the MuJoCo Jacobian lifts the foot by its penetration, keeping its orientation and
@@ -45,6 +49,18 @@ class RetargetConfig:
     """Weight (m/rad) of keeping the foot's orientation against reaching its height."""
     ik_damping: float = 1e-3
     """Levenberg damping of the leg solve (m^2)."""
+    root_height: str = "contact_set"
+    """How the per-frame root offset is chosen (`root_offsets`): "contact_set" puts the highest
+    foot of each frame's contact set on the floor; "foot_tracks" the highest of every foot's
+    in-contact height, interpolated through that foot's swing (continuous across contact-set
+    changes: no root drop when a shorter leg's pair takes over)."""
+
+    def __post_init__(self) -> None:
+        if self.root_height not in ROOT_HEIGHT_RULES:
+            raise ValueError(f"root_height {self.root_height!r} is not one of {' | '.join(ROOT_HEIGHT_RULES)}")
+
+
+ROOT_HEIGHT_RULES = ("contact_set", "foot_tracks")
 
 
 @dataclass(frozen=True)
@@ -206,6 +222,33 @@ def _lift_foot(model: mujoco.MjModel, data: mujoco.MjData, leg: _Leg, lift_m: fl
         mujoco.mj_comPos(model, data)
 
 
+def root_offsets(h: np.ndarray, flags: np.ndarray, rule: str = "contact_set") -> np.ndarray:
+    """Per-frame vertical root offsets `[T]` (m) that put the feet on the floor, from each foot's
+    lowest-point height `h [T, F]` (m, before the offset) and its contact flags `[T, F]` on the
+    base character (Won & Lee 2019, METHOD.md A: after F, the feet touch the ground; this is the
+    per-frame version of that pose solve's vertical root DOF, the legs' solve follows).
+
+    "contact_set": minus the highest foot in contact at each frame, interpolated in time across
+    frames without contact. "foot_tracks": each foot's height on its contact frames,
+    interpolated in time across its swing (held at the ends), gives a track per foot; the
+    offset is minus the highest track. Both put every contact foot at or below the floor (the
+    leg solve lifts the rest); only "foot_tracks" is continuous when the contact set changes.
+    No contact anywhere: minus the 10th percentile of the lowest foot (the clip's floor)."""
+    in_contact = flags.any(axis=1)
+    if not in_contact.any():
+        return np.full(len(h), -float(np.percentile(h.min(axis=1), 10)))
+    frames = np.arange(len(h))
+    if rule == "contact_set":
+        highest = np.where(flags, h, -np.inf).max(axis=1)
+        hit = np.flatnonzero(in_contact)
+        return np.interp(frames, hit, -highest[hit])
+    if rule == "foot_tracks":
+        tracks = [np.interp(frames, np.flatnonzero(flags[:, i]), h[flags[:, i], i])
+                  for i in range(h.shape[1]) if flags[:, i].any()]
+        return -np.max(tracks, axis=0)
+    raise ValueError(f"root height rule {rule!r} is not one of {' | '.join(ROOT_HEIGHT_RULES)}")
+
+
 def retarget_qpos(clip: Clip, model: mujoco.MjModel, foot_geoms: tuple[str, ...], leg_ratio: float,
                   contacts: ContactPhases, cfg: RetargetConfig = RetargetConfig()) -> np.ndarray:
     """qpos frames (T, nq) of `clip` on a shaped `model` with feet on the floor (module docstring)."""
@@ -214,14 +257,7 @@ def retarget_qpos(clip: Clip, model: mujoco.MjModel, foot_geoms: tuple[str, ...]
     qpos[:, :2] = xy0 + leg_ratio * (qpos[:, :2] - xy0)
     qpos[:, 2] = leg_ratio * (qpos[:, 2] - contacts.ground_m)
     h, _ = foot_heights(model, qpos, foot_geoms)
-    flags = contacts.flags
-    in_contact = flags.any(axis=1)
-    if in_contact.any():
-        highest = np.where(flags, h, -np.inf).max(axis=1)
-        frames = np.flatnonzero(in_contact)
-        dz = np.interp(np.arange(len(qpos)), frames, -highest[frames])
-    else:
-        dz = np.full(len(qpos), -float(np.percentile(h.min(axis=1), 10)))
+    dz = root_offsets(h, contacts.flags, cfg.root_height)
     qpos[:, 2] += dz
     h = h + dz[:, None]
     data = mujoco.MjData(model)

@@ -60,6 +60,11 @@ class TaskConfig:
     got (`common.characters.operator.gains_follow_torque_limits`), so small bodies are not
     driven into their limits by the base's stiffness. False: the base's gains on every shape
     (METHOD.md A). The shape presets turn it on (measured in `learner.presets`)."""
+    retarget_root_height: str = "contact_set"
+    """Walkers: how the retargeted reference's root height is chosen per frame
+    (`common.motion.retarget.root_offsets`): "contact_set" (the highest foot of each frame's
+    contact set on the floor) or "foot_tracks" (continuous across contact-set changes: a
+    quadruped whose diagonal pairs differ in length does not drop its root at each switch)."""
     shin_contact_is_fall: bool = True
     """Walkers: False lets the segment above each foot (a quadruped's shank) touch the floor
     without it counting as a fall; the trunk, head and thighs still end the episode."""

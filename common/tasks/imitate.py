@@ -30,6 +30,7 @@ import numpy as np
 
 from common.characters import CharacterFactory
 from common.characters.operator import gains_follow_torque_limits
+from common.motion.retarget import RetargetConfig
 from common.params import ParamSpace
 from common.tasks import references, rewards
 from common.tasks.base import TaskConfig, step_physics
@@ -97,6 +98,7 @@ class ImitateEnv:
         self.preset = character_preset(cfg)
         self.clip_id = cfg.clip_id or references.DEFAULT_CLIPS[self.preset]
         self.timestep_s = 1.0 / cfg.sim_hz
+        self.retarget = RetargetConfig(root_height=cfg.retarget_root_height)
         self.space = self.param_space(cfg)
         self.n_shape = len(self.space.names) - len(cfg.task_params)
         self.rng = np.random.default_rng(seed)
@@ -128,7 +130,7 @@ class ImitateEnv:
         else:
             ch = self._factory.make(shape)
             self._gains(ch)
-            motion = references.play(ch, self.clip_id, self.timestep_s)
+            motion = references.play(ch, self.clip_id, self.timestep_s, self.retarget)
             norm = rewards.Normalization.from_legs(self._legs(ch), self._base_legs, ch.mass_kg, self.base.mass_kg)
             self._cache[key] = (ch, motion, norm)
             while len(self._cache) > max(1, self.cfg.character_cache):
@@ -377,7 +379,7 @@ class ImitateEnv:
         self._cache.clear()  # NOTE: morph re-shapes the spec in place: cached characters share it
         ch, self.data = morph(self.character, shape, self.data)
         self._gains(ch)
-        motion = references.play(ch, self.clip_id, self.timestep_s)
+        motion = references.play(ch, self.clip_id, self.timestep_s, self.retarget)
         norm = rewards.Normalization.from_legs(self._legs(ch), self._base_legs, ch.mass_kg, self.base.mass_kg)
         self._set_character(ch, motion, norm)
         new_root = self._ref_qpos(self.k * self.dt)[0][0:3]

@@ -21,7 +21,7 @@ from common.motion import MotionLibrary
 from common.motion.clip import Clip
 from common.motion.kinematics import sample
 from common.motion.reference import CharacterMotion
-from common.motion.retarget import ContactPhases, contact_phases, play_on
+from common.motion.retarget import ContactPhases, RetargetConfig, contact_phases, play_on
 
 DEFAULT_CLIPS = {
     "lower_biped": "mass/walk",
@@ -99,10 +99,10 @@ def task_clip(preset: str, clip_id: str, timestep_s: float) -> tuple[Clip, Conta
     return clip, contacts
 
 
-def play(character, clip_id: str, timestep_s: float) -> CharacterMotion:
+def play(character, clip_id: str, timestep_s: float, retarget: RetargetConfig = RetargetConfig()) -> CharacterMotion:
     """The task clip retargeted onto a shaped character (see module docstring)."""
     clip, contacts = task_clip(character.preset, clip_id, timestep_s)
-    return play_on(clip, character, base_character(character.preset, timestep_s), contacts=contacts)
+    return play_on(clip, character, base_character(character.preset, timestep_s), retarget, contacts)
 
 
 def cycle_velocity(clip: Clip) -> np.ndarray:

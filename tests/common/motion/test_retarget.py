@@ -1,13 +1,15 @@
 """Issue 4's acceptance test: during contact phases of the walk clips the stance foot stays
 within 5 cm of the floor on 20 random shapes of its character."""
 
+import re
+
 import numpy as np
 import pytest
 
 from common.motion.import_bvh import load_bvh
 from common.motion.import_deepmimic import load_deepmimic
 from common.motion.reference import CharacterMotion
-from common.motion.retarget import contact_phases, foot_heights, play_on
+from common.motion.retarget import RetargetConfig, contact_phases, foot_heights, play_on, root_offsets
 
 from .conftest import DEEPMIMIC, MASS, base_character
 
@@ -58,3 +60,51 @@ def test_root_speed_scales_with_leg_length():
         ratio = np.mean(ch.leg_lengths_m) / np.mean(base.leg_lengths_m)
         assert dist[name] == pytest.approx(ratio * (clip.root_pos[-1, 0] - clip.root_pos[0, 0]), rel=1e-6)
     assert dist["short"] < dist["base"] < dist["long"]
+
+
+def test_foot_tracks_offset_is_continuous_where_the_contact_set_switches():
+    # Two diagonal pairs of a trot: feet 0+3 in contact on frames 0-9, feet 1+2 on 11-19, with
+    # foot 1 (a short leg) 12 cm higher than the others when planted.
+    h = np.zeros((20, 4))
+    h[:, 1] = 0.12
+    h[:, 3] = -0.05
+    flags = np.zeros((20, 4), dtype=bool)
+    flags[:10, [0, 3]] = True
+    flags[11:, [1, 2]] = True
+    by_set = root_offsets(h, flags, "contact_set")
+    by_tracks = root_offsets(h, flags, "foot_tracks")
+    assert np.abs(np.diff(by_set)).max() > 0.05  # the root drops by half the difference per frame
+    assert np.abs(np.diff(by_tracks)).max() < 1e-9
+    # Both put every planted foot at or below the floor (the leg solve lifts the rest).
+    for dz in (by_set, by_tracks):
+        assert np.all((h + dz[:, None])[flags] <= 1e-12)
+    with pytest.raises(ValueError, match=re.escape("'stilts' is not one of contact_set | foot_tracks")):
+        root_offsets(h, flags, "stilts")
+    with pytest.raises(ValueError, match="root_height 'stilts'"):
+        RetargetConfig(root_height="stilts")
+
+
+def test_foot_tracks_trot_on_unequal_legs_keeps_its_root_and_feet():
+    """The quadruped trot on a tall body whose fr/hl pair is much shorter than its fl/hr pair:
+    the contact-set rule drops the root by centimetres within a frame at each switch of pairs;
+    foot tracks keep the clip's own 2 cm bob, and the stance feet stay on the floor."""
+    from common.characters import load_character
+    from common.motion.procedural import quadruped_trot
+
+    base = base_character("quadruped")
+    clip = quadruped_trot(base)
+    contacts = contact_phases(clip, base.model, tuple(base.foot_geoms))
+    shape = {"global_z": 1.4}
+    for leg, s in (("fl", 1.2), ("hr", 1.2), ("fr", 0.7), ("hl", 0.7)):
+        shape.update({f"{leg}_thigh_z": s, f"{leg}_shank_z": s})
+    ch = load_character("quadruped", shape=shape, parameterization="random")
+    z = {}
+    for rule in ("contact_set", "foot_tracks"):
+        motion = play_on(clip, ch, base, RetargetConfig(root_height=rule), contacts)
+        z[rule] = motion.qpos_frames[:, 2]
+        if rule == "foot_tracks":
+            h, _ = foot_heights(ch.model, motion.qpos_frames, tuple(ch.foot_geoms))
+            assert np.abs(h[contacts.flags]).max() < TOLERANCE_M
+    assert np.abs(np.diff(z["contact_set"])).max() > 0.03
+    assert np.abs(np.diff(z["foot_tracks"])).max() < 0.01
+    assert np.ptp(z["foot_tracks"]) < 0.03

@@ -4,6 +4,7 @@ and shape change during an episode."""
 from __future__ import annotations
 
 import dataclasses
+import re
 
 import mujoco
 import numpy as np
@@ -140,6 +141,11 @@ def test_shape_box_scale_shrinks_the_box_toward_the_base_shape() -> None:
     np.testing.assert_array_equal(half.default_array, d)
     with pytest.raises(ValueError, match="shape_box_scale = 1.5 must be in"):
         ImitateEnv.param_space(dataclasses.replace(CFG, shape_box_scale=1.5))
+
+
+def test_an_unknown_root_height_rule_is_refused_when_the_env_is_built() -> None:
+    with pytest.raises(ValueError, match=re.escape("root_height 'stilts' is not one of contact_set | foot_tracks")):
+        make_env(dataclasses.replace(CFG, retarget_root_height="stilts"), seed=0)
 
 
 def test_task_parameters_rotate_and_speed_up_the_reference() -> None:
