@@ -20,6 +20,7 @@ from typing import Any, Callable
 import numpy as np
 import torch
 
+from common.motion.check import root_bob
 from common.policy import GaussianPolicy
 from common.tasks.base import TaskConfig
 from common.tasks.registry import make_env
@@ -116,8 +117,10 @@ def extremeness(space, params: np.ndarray, n_shape: int | None = None) -> np.nda
 
 def run_episode(env, policy: GaussianPolicy, params: np.ndarray, seed: int,
                 on_step: Callable[[Any, int], None] | None = None) -> dict[str, Any]:
-    """One deterministic (mean action) episode; `on_step(env, k)` is called after each step."""
+    """One deterministic (mean action) episode; `on_step(env, k)` is called after each step.
+    A walker's result also has its reference's root bob (`reference_root_bob`)."""
     obs, _ = env.reset(seed, params)
+    bob = reference_root_bob(env)
     ret = task = imit = 0.0
     fell = diverged = False
     fall_bodies: list[str] = []
@@ -137,7 +140,40 @@ def run_episode(env, policy: GaussianPolicy, params: np.ndarray, seed: int,
             fall_bodies = list(info.get("fall_bodies", [])) if fell else []
             break
     return {"return": ret, "task_reward": task, "imitation_reward": imit, "steps": k, "fell": fell,
-            "diverged": diverged, "seconds": k / env.cfg.control_hz, "fall_bodies": fall_bodies}
+            "diverged": diverged, "seconds": k / env.cfg.control_hz, "fall_bodies": fall_bodies, **bob}
+
+
+def reference_root_bob(env) -> dict[str, float]:
+    """The retargeted reference's root-height range and largest step between frames (m) on the
+    env's current shape (`common.motion.check.root_bob`), for characters with feet; {} else."""
+    motion, character = getattr(env, "motion", None), getattr(env, "character", None)
+    if motion is None or not getattr(character, "foot_geoms", ()):
+        return {}
+    span, step = root_bob(motion.qpos_frames)
+    return {"ref_root_range_m": span, "ref_root_step_m": step}
+
+
+ROOT_RANGE_BINS_M = (0.03, 0.06, 0.10)
+"""Edges of the summary's fall-down table by the reference's root range (m)."""
+
+
+def falls_by_root_range(results: list[dict]) -> list[dict[str, Any]]:
+    """Fall-down % per bin of the reference's root-height range (`ROOT_RANGE_BINS_M`), for
+    results that carry it: where a retargeting moves the root where the clip does not, the
+    shapes with the largest range fall most (the quadruped under "contact_set")."""
+    rows = [r for r in results if "ref_root_range_m" in r]
+    if not rows:
+        return []
+    span = np.array([r["ref_root_range_m"] for r in rows])
+    fell = np.array([r["fell"] or r["diverged"] for r in rows], dtype=bool)
+    edges = (0.0, *ROOT_RANGE_BINS_M, np.inf)
+    out = []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        inside = (span >= lo) & (span < hi)
+        label = f"{100 * lo:g}-{100 * hi:g} cm" if np.isfinite(hi) else f"over {100 * lo:g} cm"
+        out.append({"root_range": label, "shapes": int(inside.sum()),
+                    "fall_down_pct": float(100.0 * fell[inside].mean()) if inside.any() else None})
+    return out
 
 
 _WORKER: dict[str, Any] = {}
@@ -203,4 +239,5 @@ def summarize(results: list[dict], space, n_shape: int) -> dict[str, Any]:
         "diverged": int(sum(r["diverged"] for r in results)),
         "fall_down_pct_extreme10": float(100.0 * fell[top].mean()),
         "falls_by_body": dict(sorted(by_body.items(), key=lambda kv: (-kv[1], kv[0]))),
+        "falls_by_ref_root_range": falls_by_root_range(results),
     }

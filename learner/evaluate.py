@@ -90,6 +90,13 @@ def markdown(name: str, summary: dict, args: argparse.Namespace, files: list[str
         f"| simulator divergences | {s['diverged']} |", "",
         *([("Falls by the body whose floor contact ended them (a fall may name several): "
             + ", ".join(f"{b} {n}" for b, n in s["falls_by_body"].items())), ""] if s.get("falls_by_body") else []),
+        *(["Fall-down by how far the retargeted reference's root height ranges over the clip "
+           "(a range well above the clip's own bob means the retargeting moves the root where the clip does not; "
+           "see `morphmimic motion check --random-shape`):", "",
+           "| reference root range | shapes | fall-down % |", "|---|---|---|",
+           *(f"| {row['root_range']} | {row['shapes']} | "
+             f"{'-' if row['fall_down_pct'] is None else format(row['fall_down_pct'], '.0f')} |"
+             for row in s["falls_by_ref_root_range"]), ""] if s.get("falls_by_ref_root_range") else []),
         "Paper (Won & Lee 2019, 300 shapes, 30 s): lower-body biped 369.5 and 20.7% fall-down "
         "(218.9 / 54.1% without reward normalization); quadruped 427.5 and 9.3% (338.2 / 11.1%).", "",
         "Files: " + ", ".join(f"`{Path(f).name}`" for f in files), "",

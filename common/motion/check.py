@@ -1,4 +1,4 @@
-"""Per-clip sanity report on a character: feet against the floor, joint limits, rate, length.
+"""Per-clip sanity report on a character: feet against the floor, root bob, joint limits, rate, length.
 
 What a user wants to know before training on a clip (issue 4): does it fit the body (feet
 neither sink nor float once retargeted), does it ask joints for angles the character cannot
@@ -39,6 +39,10 @@ class ClipReport:
     """Number of (frame, DOF) pairs outside the character's joint range / PD target range."""
     worst_limit: str
     """'joint: excess rad' of the worst violation, or '-'."""
+    root_range_m: float = 0.0
+    """How far the root's height ranges over the clip (`root_bob`)."""
+    root_step_m: float = 0.0
+    """The largest change of the root's height between two frames (`root_bob`)."""
 
     def line(self, raw: "ClipReport | None" = None) -> str:
         """One human-readable line (what `morphmimic motion check` prints); with `raw` (the
@@ -48,7 +52,22 @@ class ClipReport:
             feet = f"raw pen {100 * raw.penetration_m:4.1f} float {100 * raw.stance_float_m:4.1f} -> {feet}"
         return (f"{self.name:<24} {self.character:<8} {self.fps:5.1f} Hz {self.frames:4d} fr {self.duration_s:5.2f} s "
                 f"{'loop' if self.loop else 'once'}  {feet}  air {100 * self.airborne_frac:3.0f}%  "
+                f"root {100 * self.root_range_m:4.1f} cm step {1000 * self.root_step_m:3.0f} mm  "
                 f"limits {self.limit_violations:4d} ({self.worst_limit})")
+
+
+def root_bob(qpos_frames: np.ndarray) -> tuple[float, float]:
+    """(range, largest step) of the root's height over a clip's qpos frames `[T, nq]`, in m.
+
+    A walker's root rises and falls a few cm per cycle; a much larger range on a shaped body,
+    or a step of centimetres between two frames, means the retargeting moved the root where
+    the clip does not (a quadruped with unequal leg pairs under the "contact_set" root-height
+    rule: the root drops when the shorter pair takes over). The reference then asks the body
+    for a vertical jerk no controller can follow, and such shapes fall far more often (the
+    table by this range in `morphmimic evaluate`'s summary)."""
+    z = np.asarray(qpos_frames, dtype=np.float64)[:, 2]
+    step = float(np.abs(np.diff(z)).max()) if len(z) > 1 else 0.0
+    return float(np.ptp(z)), step
 
 
 def _dof_ranges(model: mujoco.MjModel) -> list[tuple[str, int, int, float, float]]:
@@ -95,4 +114,4 @@ def check_motion(motion: CharacterMotion, foot_geoms: tuple[str, ...], contact_f
         if excess.max() > worst:
             worst, worst_name = float(excess.max()), f"{name}: +{excess.max():.2f}"
     return ClipReport(clip.name, clip.character, clip.fps, clip.num_frames, clip.duration_s, clip.loop,
-                      penetration, stance_float, airborne, count, worst_name)
+                      penetration, stance_float, airborne, count, worst_name, *root_bob(qpos))

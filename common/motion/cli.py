@@ -9,12 +9,14 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 
 import numpy as np
 
 from common.motion.errors import ClipError  # importing common.motion sets MUJOCO_GL=egl if unset
+from common.motion.retarget import ROOT_HEIGHT_RULES
 
 
 def _parse_shape(items: list[str]) -> dict[str, float] | None:
@@ -119,8 +121,10 @@ def cmd_check(args) -> int:
         print("morphmimic motion check: give clip ids / files or --all", file=sys.stderr)
         return 2
     failed = 0
+    cfg = dataclasses.replace(lib.cfg, root_height=args.root_height) if args.root_height else lib.cfg
     print("clip, character, rate, length; feet: deepest below floor (pen) and lower foot above it in contact phases "
-          "(float), as recorded -> retargeted; frames with both feet up; (frame, DOF) pairs outside the joint range")
+          "(float), as recorded -> retargeted; frames with both feet up; the retargeted root height's range over "
+          "the clip and largest step between frames; (frame, DOF) pairs outside the joint range")
     for spec in specs:
         try:
             clip = _resolve(lib, spec)
@@ -128,9 +132,9 @@ def cmd_check(args) -> int:
             ch = _character(preset, args) if (args.shape or args.random_shape is not None) else lib.base_character(preset)
             base = lib.base_character(preset)
             feet = character_feet(ch)
-            contacts = contact_phases(clip, base.model, feet, lib.cfg) if feet else None
+            contacts = contact_phases(clip, base.model, feet, cfg) if feet else None
             flags = None if contacts is None else contacts.flags
-            motion = play_on(clip, ch, base, lib.cfg, contacts)
+            motion = play_on(clip, ch, base, cfg, contacts)
             raw = check_motion(CharacterMotion.from_clip(clip, ch.model), feet, flags)
             print(check_motion(motion, feet, flags).line(raw))
         except ClipError as exc:
@@ -163,6 +167,8 @@ def build_parser() -> argparse.ArgumentParser:
         else:
             sp.add_argument("clips", nargs="*", help="manifest ids or motion files")
             sp.add_argument("--all", action="store_true", help="every clip of the manifest")
+            sp.add_argument("--root-height", choices=ROOT_HEIGHT_RULES,
+                            help="root-height rule of the retargeting (default: the library's, contact_set)")
         sp.add_argument("--character", help="preset (default: the clip's own character)")
         sp.add_argument("--parameterization", default="random", help="shape parameterization of the preset")
         sp.add_argument("--shape", action="append", default=[], help="name=value shape factor (repeatable)")

@@ -38,6 +38,7 @@ def test_evaluate_writes_json_maps_markdown_and_strips(tmp_path: Path, capsys) -
     for r in res["shapes"]:
         assert len(r["params"]) == len(res["meta"]["param_names"]) and 0 < r["seconds"] <= 0.5 + 1e-9
         assert bool(r["fall_bodies"]) == r["fell"]  # a walker's fall names the bodies that touched the floor
+        assert 0.0 < r["ref_root_range_m"] < 0.5 and 0.0 < r["ref_root_step_m"] <= r["ref_root_range_m"]
     assert 0.0 <= res["summary"]["fall_down_pct"] <= 100.0
     assert "fall-down %" in (out / "summary.md").read_text()
     for png in ("map_return.png", "best.png", "worst.png"):
@@ -91,6 +92,25 @@ def test_summary_counts_falls_divergences_and_the_extreme_tenth() -> None:
     assert s["fall_down_pct"] == pytest.approx(15.0)
     assert s["fall_down_pct_extreme10"] == 100.0 and s["diverged"] == 1
     assert s["falls_by_body"] == {"Spine": 2, "TibiaL": 1}
+    assert "falls_by_ref_root_range" in s and s["falls_by_ref_root_range"] == []  # no reference figures given
+
+
+def test_summary_tables_falls_by_the_references_root_range() -> None:
+    """Shapes whose retargeted root ranges over 10 cm fell, the rest did not: the table's bins
+    say so, and an empty bin has no rate."""
+    from common.tasks.base import TaskConfig
+    from common.tasks.registry import task_space
+    from learner import eval_core
+
+    space = task_space(TaskConfig(name="lower_biped", parameterization="height_thickness"))
+    spans = [0.01, 0.02, 0.04, 0.12, 0.20]
+    results = [{"params": list(space.default_array), "fell": z > 0.1, "diverged": False, "return": 1.0,
+                "task_reward": 1.0, "seconds": 1.0, "fall_bodies": [], "ref_root_range_m": z, "ref_root_step_m": z / 4}
+               for z in spans]
+    rows = eval_core.summarize(results, space, 2)["falls_by_ref_root_range"]
+    assert [r["root_range"] for r in rows] == ["0-3 cm", "3-6 cm", "6-10 cm", "over 10 cm"]
+    assert [r["shapes"] for r in rows] == [2, 1, 0, 2]
+    assert [r["fall_down_pct"] for r in rows] == [0.0, 0.0, None, 100.0]
 
 
 def test_evaluate_box_scale_draws_shapes_from_the_shrunk_box(tmp_path: Path, capsys) -> None:

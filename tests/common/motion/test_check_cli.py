@@ -48,3 +48,24 @@ def test_view_writes_a_png_strip(tmp_path):
     img = iio.imread(out)
     assert img.shape[1] == 3 * img.shape[0] * 240 // 360 and img.mean() > 5
     assert np.std(img) > 5  # not a blank picture
+
+
+def test_check_reports_the_root_bob_and_each_root_height_rule(capsys):
+    """On a quadruped with unequal leg pairs the "contact_set" rule moves the root by
+    centimetres between frames; "foot_tracks" keeps it near the clip's own bob. `motion check`
+    prints both figures, and refuses an unknown rule."""
+    from common.motion.check import root_bob
+
+    z = np.array([0.5, 0.52, 0.48, 0.5])
+    assert root_bob(np.stack([np.zeros(4), np.zeros(4), z], axis=1)) == pytest.approx((0.04, 0.04))
+    shape = ["--shape", "fl_thigh_z=1.2", "--shape", "hr_thigh_z=1.2", "--shape", "fl_shank_z=1.2",
+             "--shape", "hr_shank_z=1.2"]
+    figures = {}
+    for rule in ("contact_set", "foot_tracks"):
+        assert cli.main(["check", "procedural/quadruped", *shape, "--root-height", rule]) == 0
+        line = capsys.readouterr().out.splitlines()[-1]
+        figures[rule] = float(line.split(" step ")[1].split()[0])
+    assert figures["contact_set"] > 2 * figures["foot_tracks"] and figures["foot_tracks"] < 10, figures
+    with pytest.raises(SystemExit):
+        cli.main(["check", "procedural/quadruped", "--root-height", "lowest"])
+    assert "lowest" in capsys.readouterr().err
