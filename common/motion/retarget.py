@@ -222,7 +222,7 @@ def _lift_foot(model: mujoco.MjModel, data: mujoco.MjData, leg: _Leg, lift_m: fl
         mujoco.mj_comPos(model, data)
 
 
-def root_offsets(h: np.ndarray, flags: np.ndarray, rule: str = "contact_set") -> np.ndarray:
+def root_offsets(h: np.ndarray, flags: np.ndarray, rule: str = "contact_set", loop: bool = False) -> np.ndarray:
     """Per-frame vertical root offsets `[T]` (m) that put the feet on the floor, from each foot's
     lowest-point height `h [T, F]` (m, before the offset) and its contact flags `[T, F]` on the
     base character (Won & Lee 2019, METHOD.md A: after F, the feet touch the ground; this is the
@@ -230,21 +230,30 @@ def root_offsets(h: np.ndarray, flags: np.ndarray, rule: str = "contact_set") ->
 
     "contact_set": minus the highest foot in contact at each frame, interpolated in time across
     frames without contact. "foot_tracks": each foot's height on its contact frames,
-    interpolated in time across its swing (held at the ends), gives a track per foot; the
-    offset is minus the highest track. Both put every contact foot at or below the floor (the
-    leg solve lifts the rest); only "foot_tracks" is continuous when the contact set changes.
+    interpolated in time across its swing, gives a track per foot; the offset is minus the
+    highest track. Both put every contact foot at or below the floor (the leg solve lifts the
+    rest); only "foot_tracks" is continuous when the contact set changes. `loop`: the clip's
+    last frame is its first again (`Clip.loop`), so a gap at the ends is bridged around the
+    loop (period T - 1 frames); otherwise the first and last contact values are held.
     No contact anywhere: minus the 10th percentile of the lowest foot (the clip's floor)."""
     in_contact = flags.any(axis=1)
     if not in_contact.any():
         return np.full(len(h), -float(np.percentile(h.min(axis=1), 10)))
     frames = np.arange(len(h))
+    period = len(h) - 1 if loop and len(h) > 2 else None
+    known = frames < period if period else np.ones(len(h), dtype=bool)  # a loop's last frame repeats the first
+
+    def bridged(where: np.ndarray, values: np.ndarray) -> np.ndarray:
+        keep = where & known
+        if not keep.any():  # contact only on the repeated last frame: it is frame 0's
+            keep = where
+        return np.interp(frames, frames[keep], values[keep], period=period)
+
     if rule == "contact_set":
         highest = np.where(flags, h, -np.inf).max(axis=1)
-        hit = np.flatnonzero(in_contact)
-        return np.interp(frames, hit, -highest[hit])
+        return -bridged(in_contact, np.where(in_contact, highest, 0.0))
     if rule == "foot_tracks":
-        tracks = [np.interp(frames, np.flatnonzero(flags[:, i]), h[flags[:, i], i])
-                  for i in range(h.shape[1]) if flags[:, i].any()]
+        tracks = [bridged(flags[:, i], h[:, i]) for i in range(h.shape[1]) if flags[:, i].any()]
         return -np.max(tracks, axis=0)
     raise ValueError(f"root height rule {rule!r} is not one of {' | '.join(ROOT_HEIGHT_RULES)}")
 
@@ -257,7 +266,7 @@ def retarget_qpos(clip: Clip, model: mujoco.MjModel, foot_geoms: tuple[str, ...]
     qpos[:, :2] = xy0 + leg_ratio * (qpos[:, :2] - xy0)
     qpos[:, 2] = leg_ratio * (qpos[:, 2] - contacts.ground_m)
     h, _ = foot_heights(model, qpos, foot_geoms)
-    dz = root_offsets(h, contacts.flags, cfg.root_height)
+    dz = root_offsets(h, contacts.flags, cfg.root_height, clip.loop)
     qpos[:, 2] += dz
     h = h + dz[:, None]
     data = mujoco.MjData(model)

@@ -84,6 +84,24 @@ def test_foot_tracks_offset_is_continuous_where_the_contact_set_switches():
         RetargetConfig(root_height="stilts")
 
 
+def test_a_looping_clips_foot_tracks_bridge_the_gap_around_the_loop():
+    """A foot planted on frames 3-6 of a 10-frame loop (frame 9 repeats frame 0) at 2 cm, then
+    at 8 cm: held at the ends, its track would jump from 8 back to 2 cm where the loop wraps;
+    bridged around the loop (period 9 frames) it runs from 8 cm at frame 6 back to 2 cm at frame
+    3 + 9, continuous across the wrap. A clip played once keeps the held ends."""
+    h = np.zeros((10, 2))
+    h[:, 1] = [0.0, 0.0, 0.0, 0.02, 0.04, 0.06, 0.08, 0.0, 0.0, 0.0]
+    flags = np.zeros((10, 2), dtype=bool)
+    flags[:, 0] = True
+    flags[3:7, 1] = True
+    held = -root_offsets(h, flags, "foot_tracks", loop=False)
+    looped = -root_offsets(h, flags, "foot_tracks", loop=True)
+    np.testing.assert_allclose(held[[0, 9]], [0.02, 0.08])
+    np.testing.assert_allclose(looped[7:], [0.08 - 0.06 / 6, 0.08 - 0.06 * 2 / 6, 0.08 - 0.06 * 3 / 6], atol=1e-12)
+    assert looped[0] == pytest.approx(looped[9]) == pytest.approx(0.05)  # the loop closes
+    np.testing.assert_allclose(looped[3:7], h[3:7, 1])
+
+
 def test_foot_tracks_trot_on_unequal_legs_keeps_its_root_and_feet():
     """The quadruped trot on a tall body whose fr/hl pair is much shorter than its fl/hr pair:
     the contact-set rule drops the root by centimetres within a frame at each switch of pairs;
