@@ -16,7 +16,11 @@ another body); what changes is:
 3. a leg pose solve where a foot is still below the floor (the longer leg of an asymmetric
    body, or a swing foot of a long-legged one): damped least squares on that leg's joints
    with the MuJoCo Jacobian lifts the foot by its penetration, keeping its orientation and
-   horizontal position (the paper's contact-point objective, solved per frame).
+   horizontal position (the paper's contact-point objective, solved per frame); under
+   "foot_tracks" a longer leg is shortened on every frame by its track's depth, swing too,
+   so the bend is continuous (`foot_goals`). A knee the
+   clip bends one way only stays on that side in the solve (`bend_side_bounds`), so the
+   solution does not flip between frames.
 """
 
 from __future__ import annotations
@@ -53,7 +57,8 @@ class RetargetConfig:
     """How the per-frame root offset is chosen (`root_offsets`): "contact_set" puts the highest
     foot of each frame's contact set on the floor; "foot_tracks" the highest of every foot's
     in-contact height, interpolated through that foot's swing (continuous across contact-set
-    changes: no root drop when a shorter leg's pair takes over)."""
+    changes: no root drop when a shorter leg's pair takes over), and the leg solve then shortens
+    each longer leg by its track's depth below the floor on every frame (`foot_goals`)."""
 
     def __post_init__(self) -> None:
         if self.root_height not in ROOT_HEIGHT_RULES:
@@ -167,25 +172,76 @@ def _leg_dofs(model: mujoco.MjModel, body: int) -> np.ndarray:
 @dataclass(frozen=True)
 class _Leg:
     """What the leg solve needs of one foot, computed once per retarget: the foot body, the DOFs
-    between root and foot, and the limited hinges among them (qpos address, lower, upper)."""
+    between root and foot, and the limited hinges among them (qpos address, lower, upper; a
+    hinge that may turn both ways but that the clip bends one way only is narrowed to that
+    side, `bend_side_bounds`, and `hinge_side` says which: +1, -1, or 0 if not narrowed)."""
 
     body: int
     dofs: np.ndarray
     hinge_qpos: np.ndarray
     hinge_lo: np.ndarray
     hinge_hi: np.ndarray
+    hinge_side: np.ndarray
+    side_by_dof: np.ndarray
+    """`hinge_side` per entry of `dofs` (0 for the other DOFs)."""
 
     @staticmethod
-    def of(model: mujoco.MjModel, body: int) -> "_Leg":
+    def of(model: mujoco.MjModel, body: int, qpos_frames: np.ndarray | None = None) -> "_Leg":
         dofs = _leg_dofs(model, body)
         joints = sorted(set(model.dof_jntid[dofs].tolist()))
         hinges = [j for j in joints if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE and model.jnt_limited[j]]
-        return _Leg(body, dofs, model.jnt_qposadr[hinges].astype(np.int64),
-                    model.jnt_range[hinges, 0].copy(), model.jnt_range[hinges, 1].copy())
+        adr = model.jnt_qposadr[hinges].astype(np.int64)
+        lo, hi = model.jnt_range[hinges, 0].copy(), model.jnt_range[hinges, 1].copy()
+        side = np.zeros(len(hinges))
+        if qpos_frames is not None:
+            new_lo, new_hi = bend_side_bounds(qpos_frames[:, adr], lo, hi)
+            side = np.where(new_lo > lo, 1.0, np.where(new_hi < hi, -1.0, 0.0))
+            lo, hi = new_lo, new_hi
+        by_dof = np.zeros(len(dofs))
+        for j, sd in zip(hinges, side):
+            by_dof[dofs == model.jnt_dofadr[j]] = sd
+        return _Leg(body, dofs, adr, lo, hi, side, by_dof)
 
     def clamp_hinges(self, data: mujoco.MjData) -> None:
-        """Keep limited hinge joints (knees) inside their range: a solve must not bend a knee backward."""
+        """Keep limited hinge joints (knees) inside their range and on the clip's bend side: a
+        solve must not bend a knee backward."""
         data.qpos[self.hinge_qpos] = np.clip(data.qpos[self.hinge_qpos], self.hinge_lo, self.hinge_hi)
+
+    def unstraighten(self, data: mujoco.MjData, angle: float = 0.05) -> None:
+        """Bend each narrowed hinge that is within `angle` (rad) of straight to `angle` on its
+        side: a straight leg is singular, and the solve's steps would push the knee against its
+        new 0 bound and stall there (a foot left 13 cm below the floor, measured)."""
+        q = data.qpos[self.hinge_qpos]
+        data.qpos[self.hinge_qpos] = np.where((self.hinge_side != 0.0) & (np.abs(q) < angle), self.hinge_side * angle, q)
+
+
+BEND_EPS_RAD = 1e-3
+"""A hinge whose clip angle never goes past 0 by more than this, on one side, bends only the
+other way (`bend_side_bounds`)."""
+
+
+def bend_side_bounds(angles: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Joint bounds `(lo, hi)` of limited hinges narrowed to the side of 0 their clip angles
+    `angles [T, H]` keep to: a knee the clip bends only one way (a quadruped's front knees
+    negative, its hind knees positive) gets [lo, 0] or [0, hi]; a hinge the clip moves through
+    0 (or never moves) keeps its range.
+
+    Why: the quadruped's knees may turn either way (range +-2.4 rad). A straight leg is a
+    singular pose, and the leg solve that lifts a too-long leg's foot (Won & Lee 2019, METHOD.md
+    A: the per-frame pose solve after F) would bend the knee whichever way its first step
+    happened to go, frame by frame: measured on 150 random quadruped shapes, every one had a
+    knee that flipped by 1.9-3.4 rad between two frames of its reference, a PD target no body
+    can follow. A hinge whose range is already one-sided (a biped's knee, [0, 2.3]) is
+    unchanged."""
+    angles = np.asarray(angles, dtype=np.float64)
+    lo, hi = np.array(lo, dtype=np.float64), np.array(hi, dtype=np.float64)
+    if angles.size == 0:
+        return lo, hi
+    bends_neg = (angles.max(axis=0) <= BEND_EPS_RAD) & (angles.min(axis=0) < -BEND_EPS_RAD)
+    bends_pos = (angles.min(axis=0) >= -BEND_EPS_RAD) & (angles.max(axis=0) > BEND_EPS_RAD)
+    hi = np.where(bends_neg, np.minimum(hi, 0.0), hi)
+    lo = np.where(bends_pos, np.maximum(lo, 0.0), lo)
+    return lo, hi
 
 
 def _lift_foot(model: mujoco.MjModel, data: mujoco.MjData, leg: _Leg, lift_m: float, cfg: RetargetConfig) -> None:
@@ -239,23 +295,52 @@ def root_offsets(h: np.ndarray, flags: np.ndarray, rule: str = "contact_set", lo
     in_contact = flags.any(axis=1)
     if not in_contact.any():
         return np.full(len(h), -float(np.percentile(h.min(axis=1), 10)))
-    frames = np.arange(len(h))
-    period = len(h) - 1 if loop and len(h) > 2 else None
-    known = frames < period if period else np.ones(len(h), dtype=bool)  # a loop's last frame repeats the first
-
-    def bridged(where: np.ndarray, values: np.ndarray) -> np.ndarray:
-        keep = where & known
-        if not keep.any():  # contact only on the repeated last frame: it is frame 0's
-            keep = where
-        return np.interp(frames, frames[keep], values[keep], period=period)
-
     if rule == "contact_set":
         highest = np.where(flags, h, -np.inf).max(axis=1)
-        return -bridged(in_contact, np.where(in_contact, highest, 0.0))
+        return -_bridge(in_contact, np.where(in_contact, highest, 0.0), loop)
     if rule == "foot_tracks":
-        tracks = [bridged(flags[:, i], h[:, i]) for i in range(h.shape[1]) if flags[:, i].any()]
-        return -np.max(tracks, axis=0)
+        return -np.max(foot_tracks(h, flags, loop), axis=1)
     raise ValueError(f"root height rule {rule!r} is not one of {' | '.join(ROOT_HEIGHT_RULES)}")
+
+
+def foot_tracks(h: np.ndarray, flags: np.ndarray, loop: bool = False) -> np.ndarray:
+    """Each foot's planted height `[T, F]` (m): `h` on its contact frames, interpolated in time
+    across its swing (around the loop for a looping clip, else held at the ends); -inf for a foot
+    never in contact. Needs at least one contact somewhere."""
+    out = np.full(h.shape, -np.inf)
+    for i in range(h.shape[1]):
+        if flags[:, i].any():
+            out[:, i] = _bridge(flags[:, i], h[:, i], loop)
+    return out
+
+
+def _bridge(where: np.ndarray, values: np.ndarray, loop: bool) -> np.ndarray:
+    """`values [T]` kept where `where` (not all False), linearly interpolated in time between:
+    around the loop (period T - 1 frames: a loop's last frame repeats the first) or held at the
+    ends for a clip played once."""
+    frames = np.arange(len(values))
+    period = len(values) - 1 if loop and len(values) > 2 else None
+    keep = where & (frames < period) if period else where
+    if not keep.any():  # only the repeated last frame: it is frame 0's
+        keep = where
+    return np.interp(frames, frames[keep], values[keep], period=period)
+
+
+def foot_goals(h: np.ndarray, flags: np.ndarray, rule: str = "contact_set", loop: bool = False) -> np.ndarray:
+    """Where each foot's lowest point should be `[T, F]` (m above the floor), given its height
+    `h` after the root offset (`root_offsets`): on or above the floor always; with
+    "foot_tracks" also as high above the floor as it is above its own track in the clip, so a
+    longer leg is shortened by its track's depth below the floor on every frame, swing too. The
+    shortening is then continuous in time (lifting a foot only while it is below the floor
+    bends a long leg at touchdown within one frame: the knee went from the clip's 0 to 1.1
+    rad between two frames on a random quadruped)."""
+    goal = np.maximum(h, 0.0)
+    if rule == "foot_tracks" and flags.any():
+        tracks = foot_tracks(h, flags, loop)
+        has = np.isfinite(tracks)
+        clearance = np.where(has, h - tracks, h)
+        goal = np.where(has, np.maximum(clearance, 0.0), goal)
+    return goal
 
 
 def retarget_qpos(clip: Clip, model: mujoco.MjModel, foot_geoms: tuple[str, ...], leg_ratio: float,
@@ -270,28 +355,31 @@ def retarget_qpos(clip: Clip, model: mujoco.MjModel, foot_geoms: tuple[str, ...]
     qpos[:, 2] += dz
     h = h + dz[:, None]
     data = mujoco.MjData(model)
-    legs = [_Leg.of(model, int(model.geom(f).bodyid[0])) for f in foot_geoms]
+    legs = [_Leg.of(model, int(model.geom(f).bodyid[0]), qpos) for f in foot_geoms]
     geoms = [_geoms_of(model, f) for f in foot_geoms]
-    for k, i in zip(*np.nonzero(h < -cfg.ik_tolerance_m)):
+    goal = foot_goals(h, contacts.flags, cfg.root_height, clip.loop)
+    for k, i in zip(*np.nonzero(goal - h > cfg.ik_tolerance_m)):
         data.qpos[:] = qpos[k]
-        depth = -h[k, i]
+        depth = goal[k, i] - h[k, i]
+        legs[i].unstraighten(data)
         # NOTE: the foot may tilt a little while it rises, so its lowest point can lag its
         # body: measure again and lift the rest, a few rounds at most.
         for attempt in range(4):
             before = depth
             _lift_foot(model, data, legs[i], depth, cfg)
-            depth = -lowest_z(model, data, geoms[i])
+            depth = goal[k, i] - lowest_z(model, data, geoms[i])
             if depth < cfg.ik_tolerance_m:
                 break
             if depth > before - 1e-3:
                 # NOTE: a straight leg is a singular pose (no first-order way to shorten it):
                 # bend the chain a little, one way then the other, and solve again.
                 kick = np.zeros(model.nv)
-                kick[legs[i].dofs] = 0.1 if attempt % 2 == 0 else -0.2
+                side = legs[i].side_by_dof  # a narrowed knee is bent its own way
+                kick[legs[i].dofs] = np.where(side != 0.0, 0.2 * side, 0.1 if attempt % 2 == 0 else -0.2)
                 mujoco.mj_integratePos(model, data.qpos, kick, 1.0)
                 legs[i].clamp_hinges(data)
                 mujoco.mj_kinematics(model, data)
-                depth = -lowest_z(model, data, geoms[i])
+                depth = goal[k, i] - lowest_z(model, data, geoms[i])
         qpos[k] = data.qpos
     return qpos
 
