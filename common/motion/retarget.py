@@ -230,7 +230,7 @@ def bend_side_bounds(angles: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tupl
     singular pose, and the leg solve that lifts a too-long leg's foot (Won & Lee 2019, METHOD.md
     A: the per-frame pose solve after F) would bend the knee whichever way its first step
     happened to go, frame by frame: measured on 150 random quadruped shapes, every one had a
-    knee that flipped by 1.9-3.4 rad between two frames of its reference, a PD target no body
+    knee that flipped by 1.9-3.6 rad between two frames of its reference, a PD target no body
     can follow. A hinge whose range is already one-sided (a biped's knee, [0, 2.3]) is
     unchanged."""
     angles = np.asarray(angles, dtype=np.float64)
