@@ -2,7 +2,9 @@
 
 What a user wants to know before training on a clip (issue 4): does it fit the body (feet
 neither sink nor float once retargeted), does it ask joints for angles the character cannot
-reach, and is its rate and length sensible.
+reach, and is its rate and length sensible. Float is measured twice: on the frames found in
+contact (`stance_float_m`), and on every frame (`lowest_max_m`, `lowest_mean_m`: the lower
+foot's height, which a missed contact cannot hide; flights and flips raise it legitimately).
 """
 
 from __future__ import annotations
@@ -43,13 +45,25 @@ class ClipReport:
     """How far the root's height ranges over the clip (`root_bob`)."""
     root_step_m: float = 0.0
     """The largest change of the root's height between two frames (`root_bob`)."""
+    lowest_max_m: float = 0.0
+    """Over EVERY frame, not only contact phases: the largest height of the lower foot's lowest
+    point above the floor (a walk planted on the floor keeps this near 0; flights raise it)."""
+    lowest_mean_m: float = 0.0
+    """Over every frame: the mean height of the lower foot's lowest point above the floor
+    (negative when it is mostly below)."""
+
+    def feet(self) -> str:
+        """The foot figures in cm: penetration, float in contact phases, the lower foot over every frame."""
+        return (f"pen {100 * self.penetration_m:4.1f} float {100 * self.stance_float_m:4.1f} "
+                f"low max {100 * self.lowest_max_m:5.1f} mean {100 * self.lowest_mean_m:4.1f}")
 
     def line(self, raw: "ClipReport | None" = None) -> str:
         """One human-readable line (what `morphmimic motion check` prints); with `raw` (the
-        clip played as recorded) its foot figures come first, then these (retargeted)."""
-        feet = f"pen {100 * self.penetration_m:4.1f} float {100 * self.stance_float_m:4.1f} cm"
+        clip played as recorded, or for a cross-skeleton clip its source copied naively) its
+        foot figures come first, then these (retargeted)."""
+        feet = f"{self.feet()} cm"
         if raw is not None:
-            feet = f"raw pen {100 * raw.penetration_m:4.1f} float {100 * raw.stance_float_m:4.1f} -> {feet}"
+            feet = f"raw {raw.feet()} -> {feet}"
         return (f"{self.name:<24} {self.character:<8} {self.fps:5.1f} Hz {self.frames:4d} fr {self.duration_s:5.2f} s "
                 f"{'loop' if self.loop else 'once'}  {feet}  air {100 * self.airborne_frac:3.0f}%  "
                 f"root {100 * self.root_range_m:4.1f} cm step {1000 * self.root_step_m:3.0f} mm  "
@@ -98,8 +112,9 @@ def check_motion(motion: CharacterMotion, foot_geoms: tuple[str, ...], contact_f
         stance = contact_flags.any(axis=1) if contact_flags is not None else np.ones(len(h), bool)
         stance_float = max(0.0, float(lower[stance].max())) if stance.any() else 0.0
         airborne = float(np.mean(lower > AIRBORNE_M))
+        lowest_max, lowest_mean = max(0.0, float(lower.max())), float(lower.mean())
     else:
-        penetration = stance_float = airborne = 0.0
+        penetration = stance_float = airborne = lowest_max = lowest_mean = 0.0
     count, worst, worst_name = 0, 0.0, "-"
     from scipy.spatial.transform import Rotation
 
@@ -114,4 +129,5 @@ def check_motion(motion: CharacterMotion, foot_geoms: tuple[str, ...], contact_f
         if excess.max() > worst:
             worst, worst_name = float(excess.max()), f"{name}: +{excess.max():.2f}"
     return ClipReport(clip.name, clip.character, clip.fps, clip.num_frames, clip.duration_s, clip.loop,
-                      penetration, stance_float, airborne, count, worst_name, *root_bob(qpos))
+                      penetration, stance_float, airborne, count, worst_name, *root_bob(qpos),
+                      lowest_max_m=lowest_max, lowest_mean_m=lowest_mean)

@@ -2,6 +2,7 @@
 
     morphmimic motion import --all --procedural         # manifest + gaits -> common/data/clips/
     morphmimic motion import path/to/clip.bvh --out clips/
+    morphmimic motion import path/to/cmu.bvh --character humanoid --out clips/   # cross-skeleton
     morphmimic motion view humanoid3d_walk --shape leg_length=1.6 --parameterization leg_arm --out walk.png
     morphmimic motion check --all                       # one line per clip
 """
@@ -34,14 +35,14 @@ def _parse_shape(items: list[str]) -> dict[str, float] | None:
     return out
 
 
-def _resolve(lib, spec: str):
-    """A clip from a manifest id or a file path."""
+def _resolve(lib, spec: str, character: str | None = None):
+    """A clip from a manifest id or a file path (a BVH imported onto `character` when given)."""
     from common.motion.library import import_source
 
     if spec in lib.ids:
         return lib.clip(spec)
     if Path(spec).exists():
-        return import_source(spec)
+        return import_source(spec, character=character)
     raise ClipError(f"neither a clip id of the manifest nor a file; ids: {', '.join(lib.ids)}", path=spec)
 
 
@@ -69,7 +70,8 @@ def cmd_import(args) -> int:
 
         jobs += [(f"procedural/{p}", lambda p=p, g=g: g(load_character(p))) for p, g in GENERATORS.items()]
     for src in args.sources:
-        jobs.append((Path(src).stem, lambda s=src: import_source(s, fps=args.fps, skeleton=args.skeleton, label=args.label)))
+        jobs.append((Path(src).stem, lambda s=src: import_source(s, fps=args.fps, skeleton=args.skeleton, label=args.label,
+                                                                 character=args.character)))
     if not jobs:
         print("morphmimic motion import: give source files, --all or --procedural", file=sys.stderr)
         return 2
@@ -91,7 +93,7 @@ def cmd_view(args) -> int:
     from common.motion.view import write_animation, write_strip
 
     lib = MotionLibrary()
-    clip = _resolve(lib, args.clip)
+    clip = _resolve(lib, args.clip, args.character)
     preset = args.character or clip.character
     ch = _character(preset, args)
     motion = play_on(clip, ch, lib.base_character(preset)) if args.retarget else None
@@ -108,6 +110,20 @@ def cmd_view(args) -> int:
     return 0
 
 
+def _raw_clip(clip):
+    """What `check` compares a clip with: the clip as recorded, or for a clip retargeted across
+    skeletons (`extra["retarget_from"]`) its source BVH copied naively onto the same character
+    (local rotations, no rest-pose correction, root as recorded: `cross_skeleton.naive_clip`)."""
+    from common.motion.cross_skeleton import naive_clip
+    from common.motion.manifest import DATA_DIR
+
+    skeleton, source = clip.extra.get("retarget_from"), clip.extra.get("source_path")
+    if not skeleton or not source:
+        return clip
+    path = DATA_DIR / source if (DATA_DIR / source).exists() else Path(source)
+    return naive_clip(path, skeleton=skeleton, character=clip.character)
+
+
 def cmd_check(args) -> int:
     from common.motion.check import check_motion
     from common.motion.library import MotionLibrary
@@ -121,21 +137,25 @@ def cmd_check(args) -> int:
         print("morphmimic motion check: give clip ids / files or --all", file=sys.stderr)
         return 2
     failed = 0
-    cfg = dataclasses.replace(lib.cfg, root_height=args.root_height) if args.root_height else lib.cfg
-    print("clip, character, rate, length; feet: deepest below floor (pen) and lower foot above it in contact phases "
-          "(float), as recorded -> retargeted; frames with both feet up; the retargeted root height's range over "
-          "the clip and largest step between frames; (frame, DOF) pairs outside the joint range")
+    print("clip, character, rate, length; feet: deepest below floor (pen), lower foot above it in contact phases "
+          "(float), lower foot above it over every frame (low: max, mean), as recorded (for a clip retargeted across "
+          "skeletons: its source copied naively) -> retargeted; frames with both feet up; the retargeted root height's "
+          "range over the clip and largest step between frames; (frame, DOF) pairs outside the joint range")
     for spec in specs:
         try:
-            clip = _resolve(lib, spec)
+            clip = _resolve(lib, spec, args.character)
             preset = args.character or clip.character
             ch = _character(preset, args) if (args.shape or args.random_shape is not None) else lib.base_character(preset)
             base = lib.base_character(preset)
             feet = character_feet(ch)
+            cfg = lib.retarget_config(clip)
+            cfg = dataclasses.replace(cfg, root_height=args.root_height) if args.root_height else cfg
             contacts = contact_phases(clip, base.model, feet, cfg) if feet else None
             flags = None if contacts is None else contacts.flags
             motion = play_on(clip, ch, base, cfg, contacts)
-            raw = check_motion(CharacterMotion.from_clip(clip, ch.model), feet, flags)
+            raw_clip = _raw_clip(clip)
+            raw_flags = flags if raw_clip.num_frames == clip.num_frames else None
+            raw = check_motion(CharacterMotion.from_clip(raw_clip, ch.model), feet, raw_flags)
             print(check_motion(motion, feet, flags).line(raw))
         except ClipError as exc:
             failed += 1
@@ -153,6 +173,8 @@ def build_parser() -> argparse.ArgumentParser:
     imp.add_argument("--out", help="output directory (default common/data/clips/)")
     imp.add_argument("--fps", type=float, help="resample to this rate in Hz (default: the file's)")
     imp.add_argument("--skeleton", choices=("mass", "cmu"), help="BVH name map (default: guessed)")
+    imp.add_argument("--character", help="import a BVH onto this character: biped (default) or humanoid "
+                                          "(cross-skeleton retargeting)")
     imp.add_argument("--label", default="root", help="hierarchical class label for files given by path")
     for name, help_ in (("view", "render a clip kinematically to a PNG strip (.png) or animation (.gif/.mp4)"),
                         ("check", "per clip: feet vs floor, joint-range violations, rate, length")):
@@ -168,7 +190,8 @@ def build_parser() -> argparse.ArgumentParser:
             sp.add_argument("clips", nargs="*", help="manifest ids or motion files")
             sp.add_argument("--all", action="store_true", help="every clip of the manifest")
             sp.add_argument("--root-height", choices=ROOT_HEIGHT_RULES,
-                            help="root-height rule of the retargeting (default: the library's, contact_set)")
+                            help="root-height rule of the retargeting (default: the library's, contact_set; "
+                                 "foot_tracks for clips retargeted across skeletons)")
         sp.add_argument("--character", help="preset (default: the clip's own character)")
         sp.add_argument("--parameterization", default="random", help="shape parameterization of the preset")
         sp.add_argument("--shape", action="append", default=[], help="name=value shape factor (repeatable)")

@@ -8,13 +8,19 @@ Clips come from the canonical `.npz` files under `common/data/clips/` when prese
 (`morphmimic motion import --all` writes them), else from the raw source files, imported on
 first use. Contact phases are computed once per (clip, preset) on the base character and
 reused for every shape.
+
+Which clips play on a character as-is: `clips_for("humanoid")` (the 16 DeepMimic clips and
+the 8 MASS clips retargeted onto the humanoid, `humanoid/mass_*`), `clips_for("biped")` (the
+MASS clips on the biped, `mass/*`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from common.motion.clip import Clip, load_clip
+from common.motion.cross_skeleton import guess_skeleton, retarget_bvh
 from common.motion.errors import ClipError
 from common.motion.import_bvh import load_bvh
 from common.motion.import_deepmimic import load_deepmimic
@@ -27,9 +33,13 @@ LICENSES = {"deepmimic_json": "MIT (DeepMimic, Peng et al.)", "bvh": "Apache-2.0
 
 
 def import_source(path: str | Path, *, name: str | None = None, label: str = "root", fps: float | None = None,
-                  skeleton: str | None = None, license: str = "") -> Clip:
+                  skeleton: str | None = None, license: str = "", character: str | None = None) -> Clip:
     """Import any supported file by its extension: DeepMimic `.txt`/`.json`, `.bvh`
-    (skeleton 'mass' or 'cmu', guessed from the file's root joint when None), canonical `.npz`."""
+    (skeleton 'mass' or 'cmu', guessed from the file's root joint when None), canonical `.npz`.
+
+    character: for a `.bvh`, the character to import onto: 'biped' (default; the MASS name map)
+    or 'humanoid' (cross-skeleton retargeting, `cross_skeleton.retarget_bvh`). Other files are
+    bound to their own character and ignore it."""
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix == ".npz":
@@ -38,15 +48,40 @@ def import_source(path: str | Path, *, name: str | None = None, label: str = "ro
         return load_deepmimic(path, fps=fps, name=name, label=label, license=license or "MIT")
     if suffix == ".bvh":
         if skeleton is None:
-            skeleton = "mass" if "Character1_Hips" in path.read_text(errors="replace")[:2000] else "cmu"
+            skeleton = guess_skeleton(path)
+        if character not in (None, "biped"):
+            if fps is not None:
+                raise ClipError(f"--fps is not supported when retargeting onto {character!r}; the clip keeps the file's rate", path=path)
+            return retarget_bvh(path, skeleton=skeleton, character=character, name=name, label=label, license=license)
         return load_bvh(path, skeleton=skeleton, name=name, label=label, fps=fps, license=license)
     raise ClipError(f"unknown motion file type {suffix!r}; expected .txt/.json (DeepMimic), .bvh or .npz", path=path)
 
 
 def import_entry(entry: ClipEntry, data_dir: Path = DATA_DIR) -> Clip:
-    """Import a manifest entry's raw source with its label, loop flag and license."""
+    """Import a manifest entry's raw source with its label, loop flag and license; an entry with
+    `retarget_from` is retargeted across skeletons onto its `character`."""
+    if entry.retarget_from is not None:
+        clip = retarget_bvh(data_dir / entry.path, skeleton=entry.retarget_from, character=entry.character, name=entry.id,
+                            label=entry.label, license=LICENSES.get(entry.format, ""), loop=entry.loop)
+        return clip.with_(extra={**clip.extra, "source_path": entry.path})
     clip = import_source(data_dir / entry.path, name=entry.id, label=entry.label, license=LICENSES.get(entry.format, ""))
     return clip if clip.loop == entry.loop or entry.format != "bvh" else clip.with_(loop=entry.loop)
+
+
+def clips_for(character: str, manifest: Manifest | None = None) -> list[tuple[str, str]]:
+    """`(clip_id, label)` of every manifest clip that plays on `character` as-is, in manifest order.
+
+    For "humanoid": the 16 DeepMimic clips and the 8 MASS clips retargeted onto it
+    (`humanoid/mass_*`); for "biped": the MASS clips (`mass/*`). `MotionLibrary().clip(clip_id)`
+    loads each. The procedural gaits (`procedural/<preset>`) are not manifest clips.
+    Raises ClipError naming an unknown character preset.
+    """
+    from common.characters.presets import PRESETS
+
+    if character not in PRESETS:
+        raise ClipError(f"unknown character {character!r}; presets: {', '.join(PRESETS)}")
+    manifest = manifest or load_manifest()
+    return [(e.id, e.label) for e in manifest.entries if e.character == character]
 
 
 class MotionLibrary:
@@ -100,10 +135,21 @@ class MotionLibrary:
             self._contacts[key] = contact_phases(self.clip(clip_id), base.model, character_feet(base), self.cfg)
         return self._contacts[key]
 
+    def retarget_config(self, clip: Clip) -> RetargetConfig:
+        """The retargeting settings for one clip: the library's, except that a clip retargeted
+        across skeletons (`extra["retarget_from"]`, e.g. `humanoid/mass_balance`) is played with
+        the "foot_tracks" root-height rule it was planted with: under "contact_set" a foot joining
+        the contact set a few cm up moves the root by that much within a frame (measured on the
+        base humanoid: 43 mm on the MASS balance, 38 mm on the pirouette; 4 and 11 mm with
+        "foot_tracks"). The other clips keep the library's rule unchanged."""
+        if clip.extra.get("retarget_from"):
+            return dataclasses.replace(self.cfg, root_height="foot_tracks")
+        return self.cfg
+
     def play(self, clip_id: str, character) -> CharacterMotion:
         """The clip retargeted onto a shaped `common.characters.Character`."""
         clip = self.clip(clip_id)
         if clip.character and clip.character != character.preset:
             raise ClipError(f"clip is for the {clip.character!r} character, not {character.preset!r}", path=clip_id)
         base = self.base_character(character.preset)
-        return play_on(clip, character, base, self.cfg, self.contacts(clip_id, character.preset))
+        return play_on(clip, character, base, self.retarget_config(clip), self.contacts(clip_id, character.preset))

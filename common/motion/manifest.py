@@ -4,6 +4,14 @@ Labels are paths `root/<major>/<minor>/...` (UniCon, Wang et al. 2020): the moti
 walks this tree choosing each child with equal probability. The manifest starts from
 `common/data/clips.json`.
 
+Each entry: `id`, `path` (the raw source, relative to `common/data/`), `label`, `format`
+(`deepmimic_json` | `bvh`), `fps`, `frames`, optional `loop` ("wrap"), and two optional fields
+for clips played on another character than their source's own:
+- `character`: the character preset the clip plays on as-is; default the format's own
+  (`deepmimic_json` -> humanoid, `bvh` -> biped, `NATIVE_CHARACTER`);
+- `retarget_from`: the source skeleton of a BVH retargeted across skeletons onto `character`
+  (`mass` | `cmu`, `common.motion.cross_skeleton`), e.g. the MASS clips on the humanoid.
+
 Split (UniCon's evaluation protocol: "80/20 of frames; rare classes go to the test set first"):
 the reconstruction implemented here, configurable by `test_fraction` and `class_depth`:
 1. a clip's class is its label cut to `class_depth` levels below `root` (default: the full label);
@@ -12,6 +20,9 @@ the reconstruction implemented here, configurable by `test_fraction` and `class_
 3. walking that order, whole clips (in seeded order within a class) move to the test set while
    the test set is below `test_fraction` of all frames; a clip that would overshoot the target
    by more than it would undershoot is skipped, so the test share lands near the target.
+Frames are counted at one common rate (`SPLIT_FPS`, i.e. by duration): UniCon's dataset has one
+frame rate, this one mixes 16-120 Hz captures, and counting raw frames made a 120 Hz MASS clip
+weigh 4-8 times a DeepMimic clip of the same length (all 16 DeepMimic clips counted as "rare").
 """
 
 from __future__ import annotations
@@ -27,6 +38,10 @@ from common.motion.errors import ClipError
 
 DATA_DIR = Path(__file__).resolve().parent.parent / "data"
 CLIPS_JSON = DATA_DIR / "clips.json"
+NATIVE_CHARACTER = {"deepmimic_json": "humanoid", "bvh": "biped"}
+"""The character a source format's clips play on without retargeting."""
+SPLIT_FPS = 60.0
+"""The common rate at which `unicon_split` counts a clip's frames (see module docstring)."""
 
 
 @dataclass(frozen=True)
@@ -40,11 +55,20 @@ class ClipEntry:
     fps: float
     frames: int
     loop: bool
+    character: str = ""
+    """The character preset the clip plays on as-is (`humanoid`, `biped`)."""
+    retarget_from: str | None = None
+    """Source skeleton (`mass`, `cmu`) of a BVH retargeted onto `character`; None if not retargeted."""
 
     @property
     def label_parts(self) -> tuple[str, ...]:
         """('root', 'locomotion', 'walk', 'forward')."""
         return tuple(self.label.split("/"))
+
+    @property
+    def split_frames(self) -> float:
+        """The clip's length in frames at SPLIT_FPS (its duration x 60)."""
+        return self.frames / self.fps * SPLIT_FPS if self.fps > 0 else float(self.frames)
 
     def class_at(self, depth: int | None) -> str:
         """The label cut to `depth` levels below root (None: the whole label)."""
@@ -103,14 +127,45 @@ def load_manifest(path: str | Path = CLIPS_JSON) -> Manifest:
             label = str(c["label"])
             if not label.startswith("root"):
                 raise ClipError(f"label {label!r} must start with 'root/'", path=path, joint=c.get("id"))
-            entries.append(ClipEntry(id=str(c["id"]), path=str(c["path"]), label=label, format=str(c["format"]),
-                                     fps=float(c["fps"]), frames=int(c["frames"]), loop=c.get("loop") == "wrap"))
+            fmt = str(c["format"])
+            character, retarget_from = _character_fields(c, k, fmt, path)
+            entries.append(ClipEntry(id=str(c["id"]), path=str(c["path"]), label=label, format=fmt,
+                                     fps=float(c["fps"]), frames=int(c["frames"]), loop=c.get("loop") == "wrap",
+                                     character=character, retarget_from=retarget_from))
+        except ClipError:
+            raise
         except (KeyError, TypeError, ValueError) as exc:
             raise ClipError(f"clip entry {k} lacks or has a bad field ({exc}); needs id, path, label, format, fps, frames", path=path) from exc
     ids = [e.id for e in entries]
     if len(set(ids)) != len(ids):
         raise ClipError(f"duplicate clip ids: {sorted({i for i in ids if ids.count(i) > 1})}", path=path)
     return Manifest(tuple(entries))
+
+
+def _character_fields(c: dict, k: int, fmt: str, path: Path) -> tuple[str, str | None]:
+    """(character, retarget_from) of a manifest entry, validated (module docstring)."""
+    from common.motion.cross_skeleton import SOURCE_SKELETONS, TARGETS
+
+    where = f"clip entry {k} ({c.get('id')!r})"
+    native = NATIVE_CHARACTER.get(fmt, "")
+    retarget_from = c.get("retarget_from")
+    character = c.get("character", native)
+    if not isinstance(character, str):
+        raise ClipError(f"{where}: character {character!r} must be a character preset name", path=path)
+    if retarget_from is None:
+        if native and character != native:
+            raise ClipError(f"{where}: character {character!r} is not what a {fmt!r} clip plays on ({native!r}); "
+                            f"a BVH for another character needs retarget_from", path=path)
+        return character, None
+    if not isinstance(retarget_from, str) or retarget_from not in SOURCE_SKELETONS:
+        raise ClipError(f"{where}: retarget_from {retarget_from!r} is not a known source skeleton; choose one of "
+                        f"{', '.join(map(repr, SOURCE_SKELETONS))}", path=path)
+    if fmt != "bvh":
+        raise ClipError(f"{where}: retarget_from {retarget_from!r} needs format 'bvh', not {fmt!r}", path=path)
+    if character not in TARGETS:
+        raise ClipError(f"{where}: character {character!r} is not a retargeting target; choose one of "
+                        f"{', '.join(map(repr, TARGETS))}", path=path)
+    return character, retarget_from
 
 
 @dataclass(frozen=True)
@@ -134,10 +189,11 @@ def unicon_split(manifest: Manifest, *, seed: int = 0, test_fraction: float = 0.
         classes[e.class_at(class_depth)].append(e)
     names = sorted(classes)
     tiebreak = dict(zip(names, rng.permutation(len(names))))
-    order = sorted(names, key=lambda c: (sum(e.frames for e in classes[c]), tiebreak[c]))
-    target = test_fraction * manifest.total_frames
+    order = sorted(names, key=lambda c: (sum(e.split_frames for e in classes[c]), tiebreak[c]))
+    total = sum(e.split_frames for e in manifest.entries)
+    target = test_fraction * total
     test: list[str] = []
-    test_frames = 0
+    test_frames = 0.0
     for cls in order:
         members = sorted(classes[cls], key=lambda e: e.id)
         for i in rng.permutation(len(members)):
@@ -145,8 +201,8 @@ def unicon_split(manifest: Manifest, *, seed: int = 0, test_fraction: float = 0.
             if test_frames >= target:
                 break
             # NOTE: take the clip only if that lands nearer the target than leaving it out.
-            if abs(test_frames + e.frames - target) <= abs(test_frames - target):
+            if abs(test_frames + e.split_frames - target) <= abs(test_frames - target):
                 test.append(e.id)
-                test_frames += e.frames
+                test_frames += e.split_frames
     train = tuple(e.id for e in manifest.entries if e.id not in test)
-    return Split(train=train, test=tuple(sorted(test)), seed=seed, test_fraction_frames=test_frames / manifest.total_frames)
+    return Split(train=train, test=tuple(sorted(test)), seed=seed, test_fraction_frames=test_frames / total)

@@ -25,18 +25,19 @@ def test_repository_clips_exact():
     clips = load_clip_labels()
     b = MotionBalancer(clips)
     p = b.exact_probabilities
-    assert len(p) == len(clips) == 24
+    assert len(p) == len(clips) == 32
     assert sum(p.values()) == 1
-    # root has 7 classes; martial_arts -> kick/punch; kick -> front (2 clips)/spin
+    # root has 7 classes; martial_arts -> kick/punch; kick -> front (3 clips)/spin; a label
+    # shared by a clip and its cross-skeleton copy on the humanoid splits its leaf
     assert p["humanoid3d_getup_faceup"] == F(1, 7)
-    assert p["mass/balance"] == F(1, 7)
+    assert p["mass/balance"] == p["humanoid/mass_balance"] == F(1, 14)
     assert p["humanoid3d_punch"] == F(1, 14)
-    assert p["humanoid3d_kick"] == p["mass/kick"] == F(1, 56)
+    assert p["humanoid3d_kick"] == p["mass/kick"] == p["humanoid/mass_kick"] == F(1, 84)
     assert p["humanoid3d_spinkick"] == F(1, 28)
-    # locomotion -> crawl/run/walk; walk/forward holds 2 clips and the style/zombie sub-class
+    # locomotion -> crawl/run/walk; walk/forward holds 3 clips and the style/zombie sub-class
     assert p["humanoid3d_crawl"] == F(1, 21)
     assert p["humanoid3d_zombie_walk"] == F(1, 42)
-    assert p["humanoid3d_walk"] == p["mass/walk"] == F(1, 84)
+    assert p["humanoid3d_walk"] == p["mass/walk"] == p["humanoid/mass_walk"] == F(1, 126)
 
 
 def test_draws_follow_the_probabilities():

@@ -9,7 +9,7 @@ from common.motion.manifest import load_manifest
 
 from .conftest import CMU, MASS
 
-MASS_ENTRIES = [e for e in load_manifest().entries if e.format == "bvh"]
+MASS_ENTRIES = [e for e in load_manifest().entries if e.format == "bvh" and e.character == "biped"]
 
 
 def test_manifest_lists_8_mass_clips():
