@@ -12,6 +12,7 @@ from typing import Literal
 from actors.config import ActorConfig
 from common.policy import PolicyConfig
 from common.tasks.base import TaskConfig
+from common.tasks.executor_config import ExecutorConfig
 from learner.ppo import PPOConfig
 from sampler.config import SamplerConfig
 
@@ -111,15 +112,25 @@ class RunConfig:
 
     @staticmethod
     def from_json(text: str) -> "RunConfig":
-        raw = json.loads(text)
-        parts = {"task": TaskConfig, "policy": PolicyConfig, "ppo": PPOConfig, "actors": ActorConfig, "sampler": SamplerConfig}
-        kwargs = {}
-        for k, v in raw.items():
-            if k in parts:
-                sub = parts[k]
-                hints = {f.name: f.type for f in dataclasses.fields(sub)}
-                v = {kk: tuple(vv) if isinstance(vv, list) else vv for kk, vv in v.items() if kk in hints}
-                kwargs[k] = sub(**v)
-            else:
-                kwargs[k] = v
-        return RunConfig(**kwargs)
+        return _from_dict(RunConfig, json.loads(text))
+
+
+_NESTED = {"task": TaskConfig, "policy": PolicyConfig, "ppo": PPOConfig, "actors": ActorConfig, "sampler": SamplerConfig,
+           "executor": ExecutorConfig}
+"""Fields that hold a config dataclass (by field name), rebuilt from their JSON objects."""
+
+
+def _from_dict(cls: type, raw: dict):
+    """`cls(**raw)` with nested config dataclasses rebuilt and JSON lists turned back into tuples;
+    keys the class no longer has (a config written by an older version) are dropped."""
+    names = {f.name for f in dataclasses.fields(cls)}
+    kwargs = {}
+    for k, v in raw.items():
+        if k not in names:
+            continue
+        if k in _NESTED and isinstance(v, dict):
+            v = _from_dict(_NESTED[k], v)
+        elif isinstance(v, list):
+            v = tuple(tuple(x) if isinstance(x, list) else x for x in v)
+        kwargs[k] = v
+    return cls(**kwargs)

@@ -117,3 +117,66 @@ PRESETS["lower_biped-tiny"] = (
         sampler=SamplerConfig(k=ADAPTIVE_K, p_mcmc=1, n_mcmc=100, vm_fit_steps=10, plot_params=("global_z", "global_x")),
     ),
 )
+
+
+def _executor_preset(variant: str = "") -> RunConfig:
+    """UniCon 2020's motion executor (METHOD.md B) on the DeepMimic humanoid over the train split
+    of every clip that plays on it: torque actions, agent-centric observation with tau = 1, the
+    five-term reward ended by any term below 0.1, reactive state initialization, 60 Hz control
+    with 4 substeps (240 Hz physics), the motion balancer's clip draws, UniCon's policy variance
+    controller and a KL penalty.
+
+    Deviations from UniCon, for this 2-core CPU: a 3 x 256 network instead of 3 x 1024 (the
+    learner's Adam step costs about 10x less per sample: DESIGN.md "Measured"), 8192 transitions
+    per update from 32 environments instead of 4096 agents x 64 steps, 5 epochs of 512.
+    Action noise starts at log std -2 (0.14 of each effort factor, 52 N m at the hips) and the
+    variance controller takes it to -2.5 over 20 M steps: at -1 (0.37, 143 N m) the random
+    torques alone broke the joint-velocity term within one control step (40 starts on the
+    tracked frame: every one ended at step 1), and the first 0.8 M steps of a run with it moved
+    the mean return from 2.3 to 2.8 only; at -2 an untrained policy's return is 2.8 already.
+    Variants for the ablations: "pd" (PD targets), "noterm" (the sum rule instead of per-term
+    termination), "uniform" (uniform clip draws instead of the balancer), "norsis" (start on
+    the tracked frame, no noise)."""
+    from common.policy import PolicyConfig
+    from common.tasks.base import TaskConfig
+    from common.tasks.executor_config import ExecutorConfig
+    from learner.ppo import PPOConfig
+
+    ex = ExecutorConfig(
+        actuation="pd" if variant == "pd" else "torque",
+        termination="sum" if variant == "noterm" else "per_term",
+        reactive_init=variant != "norsis",
+        clip_draws="uniform" if variant == "uniform" else "balancer",
+    )
+    task = TaskConfig(name="executor", control_hz=60.0, sim_hz=240.0, episode_s=20.0,
+                      parameterization="height_thickness", vary_shape=False, executor=ex)
+    return RunConfig(
+        name=f"executor-{variant}" if variant else "executor",
+        total_env_steps=50_000_000,
+        steps_per_iteration=8192,
+        checkpoint_every=10,
+        keep_checkpoints=100,
+        vm_plot_every=0,
+        task=task,
+        policy=PolicyConfig(hidden=(256, 256, 256), init_log_std=-2.0, learn_log_std=False, final_log_std=-2.5,
+                            log_std_anneal_steps=20_000_000),
+        ppo=PPOConfig(gamma=0.95, epochs=5, minibatch=512, lr=2e-4, kl_coef=0.2, kl_stop=0.1),
+        actors=ActorConfig(num_actors=2, envs_per_actor=16, unroll_length=32),
+        sampler=SamplerConfig(k=0.0, p_mcmc=1000, n_mcmc=100, vm_fit_steps=1),
+    )
+
+
+for _variant, _vtext in {"": "torque, per-term termination, balancer, reactive initialization",
+                         "pd": "ablation: PD targets instead of torques", "noterm": "ablation: sum rule, no per-term termination",
+                         "uniform": "ablation: uniform clip draws, no balancer", "norsis": "ablation: no reactive initialization"}.items():
+    _cfg = _executor_preset(_variant)
+    PRESETS[_cfg.name] = (f"UniCon motion executor on the DeepMimic humanoid over its clip library; {_vtext}", _cfg)
+PRESETS["executor-tiny"] = (
+    "two iterations of the executor for smoke tests",
+    __import__("dataclasses").replace(
+        PRESETS["executor"][1], name="executor-tiny", total_env_steps=2 * 1024, steps_per_iteration=1024, checkpoint_every=1,
+        policy=__import__("dataclasses").replace(PRESETS["executor"][1].policy, hidden=(64, 64)),
+        ppo=__import__("dataclasses").replace(PRESETS["executor"][1].ppo, minibatch=256),
+        actors=ActorConfig(num_actors=1, envs_per_actor=4, unroll_length=32),
+    ),
+)

@@ -15,6 +15,7 @@ import mujoco
 import numpy as np
 
 from common.params import ParamSpace
+from common.tasks.executor_config import ExecutorConfig
 
 
 @dataclass(frozen=True)
@@ -75,6 +76,8 @@ class TaskConfig:
     """Shape tasks: w1..w6 (empty: the character's row of METHOD.md A's table)."""
     reward_sensitivities: tuple[float, ...] = (0.02, 0.5, 0.2, 0.2, 0.05, 0.1)
     """Shape tasks: s1..s6 (METHOD.md A)."""
+    executor: ExecutorConfig = ExecutorConfig()
+    """The `executor` task's settings (UniCon 2020, METHOD.md B): `--task.executor.tau 2` etc."""
     character_cache: int = 8
     """Shape tasks: compiled characters + retargeted references kept per environment (LRU):
     a repeated shape (the MCMC buffer repeats them) skips the 15-100 ms rebuild."""

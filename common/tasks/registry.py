@@ -14,6 +14,7 @@ TASKS: dict[str, str] = {
     "quadruped": "common.tasks.imitate:ImitateEnv",
     "fish": "common.tasks.imitate:ImitateEnv",
     "manta": "common.tasks.imitate:ImitateEnv",
+    "executor": "common.tasks.executor:ExecutorEnv",
 }
 
 

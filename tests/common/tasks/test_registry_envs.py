@@ -15,6 +15,9 @@ SHAPE_TASKS = [name for name in TASKS if name != "reach"]
 def _cfg(name: str) -> TaskConfig:
     if name == "reach":
         return TaskConfig(name=name)
+    if name == "executor":
+        return TaskConfig(name=name, control_hz=60.0, sim_hz=240.0, episode_s=5.0, vary_shape=False,
+                          parameterization="height_thickness")
     return TaskConfig(name=name, control_hz=30.0, sim_hz=480.0, episode_s=30.0, max_root_deviation=1.0)
 
 

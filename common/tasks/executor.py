@@ -1,0 +1,413 @@
+"""`ExecutorEnv`: UniCon's low-level motion executor (Wang et al. 2020; METHOD.md B) on the
+DeepMimic humanoid, over a whole clip library.
+
+- Targets come from a `Scheduler` (`schedulers.py`); training uses the `DatasetScheduler`: the
+  clip the sampler's motion balancer drew for the episode, from a random frame, rescheduled to
+  another balanced draw at the clip's end (`ExecutorConfig.at_clip_end`).
+- Observation: s_t = [shape params, o(X_now), o(X~_t+1), y(X~_t+1), ... up to tau]
+  (`executor_obs.py`): agent-centric, unchanged by where the character stands or faces.
+- Action (`ExecutorConfig.actuation`): torques, a in [-1, 1] per DOF times its effort factor
+  (`EFFORT_70KG_NM`, UniCon's 50-600 N m for its 70 kg humanoid, scaled by mass to this one);
+  or PD targets q~_t+1 + scale a with the humanoid's DeepMimic gains, for the comparison.
+- Reward and termination (`executor_rewards.py`): the five terms with UniCon's weights; the
+  episode ends as soon as any term is below alpha = 0.1 (switchable), on simulator divergence,
+  and is truncated at the time limit or when a stopping scheduler runs out.
+- Reactive state initialization (UniCon 5.2): the character starts 5-10 control steps away from
+  the tracked frame with noise on root translation and velocities (switchable). In training the
+  termination rule waits `catch_up_steps` (30) control steps after a start or a reschedule (a
+  reconstruction, see `ExecutorConfig.catch_up_steps`); evaluation applies it from the start.
+- 60 Hz control with 4 substeps (240 Hz physics), as UniCon (`executor` preset).
+
+The humanoid's shape parameters are the episode parameters (collapsed to the base shape while
+the executor trains on one body, so the observation layout already has them): Won & Lee's
+shape variation joins by widening that box.
+
+Robustness hooks (zero-shot tests, UniCon 8.5): `scale_mass` makes the body heavier or lighter,
+`throw_projectile` throws the next of the optional projectile balls (`ExecutorConfig.projectile`) at it.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import mujoco
+import numpy as np
+
+from common.characters import load_character
+from common.characters.morph import lift_out_of_floor
+from common.motion.library import MotionLibrary
+from common.motion.manifest import Manifest, load_manifest, unicon_split
+from common.motion.reference import CharacterMotion
+from common.params import ParamSpace
+from common.tasks import executor_rewards as rw
+from common.tasks.base import TaskConfig, step_physics
+from common.tasks.executor_obs import BodyKin, observation, read_kinematics
+from common.tasks.observations import JointLayout
+from common.tasks.schedulers import DatasetScheduler, TargetFrame
+from sampler.balancer import MotionBalancer
+
+CHARACTER = "humanoid"
+EFFORT_70KG_NM = {
+    "chest": 600.0, "neck": 100.0, "hip": 600.0, "knee": 400.0, "ankle": 300.0, "shoulder": 300.0, "elbow": 150.0,
+}
+"""Effort factor (N m per unit action) of each joint's DOF for a 70 kg humanoid, within UniCon's
+range of 50-600 (7.2: the paper gives the range, not the table, so the split is a
+reconstruction: strongest at hips and trunk, weakest at the neck and elbows). The task scales
+them by body mass / 70 kg (45 kg: 386 N m at the hips, 64 N m at the neck), 1.6-2.1x the
+DeepMimic PD torque limits of the same joints."""
+UNICON_MASS_KG = 70.0
+PROJECTILE = {"mass_kg": 2.0, "radius_m": 0.08}
+"""The projectile of the robustness test: a 2 kg ball, 16 cm across (see `throw_projectile`)."""
+PROJECTILES = 24
+"""Balls in a scene built with `ExecutorConfig.projectile`, thrown in turn, so one can be thrown
+every control step although each flies for about 12 steps (2 m at 10 m/s, 60 Hz)."""
+PROJECTILE_LIFE_STEPS = 60
+"""A thrown ball is parked again this many control steps (1 s) after its throw."""
+PARKED = np.array([0.0, 0.0, -50.0])
+"""Where parked balls wait: below the floor, weightless (gravcomp) and without contacts."""
+
+
+@functools.lru_cache(maxsize=None)
+def _manifest() -> Manifest:
+    return load_manifest()
+
+
+def humanoid_clips() -> list[tuple[str, str]]:
+    """(clip_id, label) of every manifest clip that plays on the humanoid as it is."""
+    from common.motion import library
+
+    if hasattr(library, "clips_for"):
+        return list(library.clips_for(CHARACTER))
+    lib = MotionLibrary()
+    return [(e.id, e.label) for e in _manifest().entries if lib.clip(e.id).character == CHARACTER]
+
+
+def executor_clips(cfg: TaskConfig) -> list[tuple[str, str]]:
+    """(clip_id, label) the task tracks: `cfg.executor.clips`, else the configured split; with
+    `clip_draws="uniform"` every label is "root/all", so the motion balancer draws uniformly."""
+    pairs = labelled_clips(cfg)
+    if cfg.executor.clip_draws == "uniform":
+        return [(c, "root/all") for c, _ in pairs]
+    return pairs
+
+
+def labelled_clips(cfg: TaskConfig) -> list[tuple[str, str]]:
+    """(clip_id, manifest label) the task tracks (see `executor_clips`)."""
+    ex = cfg.executor
+    every = humanoid_clips()
+    labels = dict(every)
+    if ex.clips:
+        unknown = [c for c in ex.clips if c not in labels]
+        if unknown:
+            raise ValueError(f"clips {unknown} do not play on the humanoid; choose from: {', '.join(labels)}")
+        return [(c, labels[c]) for c in ex.clips]
+    if ex.split == "all":
+        return every
+    manifest = _manifest()
+    sub = Manifest(tuple(manifest.by_id(c) for c, _ in every))
+    split = unicon_split(sub, seed=ex.split_seed)
+    keep = set(split.train if ex.split == "train" else split.test)
+    return [(c, lab) for c, lab in every if c in keep]
+
+
+def torque_actuation(model: mujoco.MjModel, efforts: np.ndarray) -> None:
+    """Turn every actuator of `model` into a motor: force = effort * ctrl, ctrl in [-1, 1],
+    no stiffness or damping (the policy owns them), in place. efforts `[nu]` N m."""
+    model.actuator_gaintype[:] = mujoco.mjtGain.mjGAIN_FIXED
+    model.actuator_biastype[:] = mujoco.mjtBias.mjBIAS_NONE
+    model.actuator_gainprm[:] = 0.0
+    model.actuator_gainprm[:, 0] = efforts
+    model.actuator_biasprm[:] = 0.0
+    model.actuator_ctrlrange[:] = [-1.0, 1.0]
+    model.actuator_ctrllimited[:] = 1
+    model.actuator_forcerange[:, 0] = -efforts
+    model.actuator_forcerange[:, 1] = efforts
+    model.actuator_forcelimited[:] = 1
+
+
+def passive_damping(model: mujoco.MjModel, fraction: float) -> None:
+    """Set each actuated DOF's joint damping to `fraction` x its DeepMimic PD kd, in place
+    (see `ExecutorConfig.passive_damping` for why torque control needs it)."""
+    from common.characters.presets.humanoid import GAINS
+
+    for a in range(model.nu):
+        j = int(model.actuator_trnid[a, 0])
+        width = 3 if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_BALL else 1
+        dof = int(model.jnt_dofadr[j])
+        model.dof_damping[dof : dof + width] = fraction * GAINS[model.joint(j).name.split("_")[-1]][1]
+
+
+def effort_factors(model: mujoco.MjModel, mass_kg: float, scale: float = 1.0) -> np.ndarray:
+    """`[nu]` effort factors: EFFORT_70KG_NM by joint (actuator names `<joint>` or
+    `<joint>_x|y|z`, the joint's last word picks the row) times mass / 70 kg times `scale`."""
+    out = np.zeros(model.nu)
+    for a in range(model.nu):
+        joint = model.joint(int(model.actuator_trnid[a, 0])).name
+        part = joint.split("_")[-1]
+        if part not in EFFORT_70KG_NM:
+            raise ValueError(f"actuator {model.actuator(a).name!r}: no effort factor for joint kind {part!r}")
+        out[a] = EFFORT_70KG_NM[part] * mass_kg / UNICON_MASS_KG * scale
+    return out
+
+
+class ExecutorEnv:
+    """Gymnasium-style environment (`common.tasks.base.Env`); see the module docstring."""
+
+    @staticmethod
+    def param_space(cfg: TaskConfig) -> ParamSpace:
+        """The humanoid's shape parameters (`cfg.parameterization`), pinned to the base shape."""
+        from common.tasks.references import base_character
+
+        shape = base_character(CHARACTER, 1.0 / cfg.sim_hz).base.spaces.get(cfg.parameterization)
+        if shape is None:
+            spaces = base_character(CHARACTER, 1.0 / cfg.sim_hz).base.spaces
+            raise ValueError(f"parameterization {cfg.parameterization!r} is not one of {sorted(spaces)}")
+        if cfg.vary_shape:
+            raise ValueError("the executor trains on the base humanoid for now: run it with --task.no-vary-shape "
+                             "(shape variation over clips is the next step, see README)")
+        d = tuple(float(x) for x in shape.default)
+        return ParamSpace(tuple(shape.names), d, d, d, tuple(p.doc for p in shape.params))
+
+    @staticmethod
+    def clips(cfg: TaskConfig) -> list[tuple[str, str]]:
+        return executor_clips(cfg)
+
+    def __init__(self, cfg: TaskConfig, seed: int = 0):
+        self.cfg, self.ex = cfg, cfg.executor
+        self.rng = np.random.default_rng(seed)
+        self.space = self.param_space(cfg)
+        self.dt = 1.0 / cfg.control_hz
+        ch = load_character(CHARACTER, timestep_s=1.0 / cfg.sim_hz)
+        self.character = ch
+        self.ref_model = ch.model
+        self.ref_data = mujoco.MjData(self.ref_model)
+        spec = ch.spec.copy()
+        if self.ex.projectile:
+            for i in range(PROJECTILES):
+                ball = spec.worldbody.add_body(name=f"projectile{i}", pos=list(PARKED), gravcomp=1.0)
+                ball.add_freejoint(name=f"projectile{i}")
+                ball.add_geom(name=f"projectile{i}", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[PROJECTILE["radius_m"], 0, 0],
+                              mass=PROJECTILE["mass_kg"], rgba=[0.9, 0.3, 0.2, 1.0], contype=0, conaffinity=0)
+        self.model = spec.compile()
+        self.nq, self.nv, self.nu = self.ref_model.nq, self.ref_model.nv, self.ref_model.nu
+        self.base_mass = self.model.body_mass.copy()
+        self.base_inertia = self.model.body_inertia.copy()
+        self.mass_kg = float(ch.mass_kg)
+        if self.ex.actuation == "torque":
+            self.efforts = effort_factors(self.model, self.mass_kg, self.ex.effort_scale)
+            torque_actuation(self.model, self.efforts)
+            passive_damping(self.model, self.ex.passive_damping)
+        elif self.ex.actuation != "pd":
+            raise ValueError(f"actuation {self.ex.actuation!r} is not one of torque, pd")
+        self.layout = JointLayout(self.ref_model)
+        self.bodies = np.arange(1, self.ref_model.nbody)
+        self.clip_list = executor_clips(cfg)
+        if not self.clip_list:
+            raise ValueError(f"no clips to track for split {self.ex.split!r} (seed {self.ex.split_seed})")
+        balancer = MotionBalancer(self.clip_list)
+        self.library = MotionLibrary()
+        self._motions: dict[str, CharacterMotion] = {}
+        lookback = self.ex.rsis_frames[1] + 1
+        self.scheduler = DatasetScheduler(self.ref_model, self._motion, balancer.clip_ids, balancer.probabilities, self.dt,
+                                          speed=self.ex.speed, at_end=self.ex.at_clip_end, lookback=lookback,
+                                          lookahead=self.ex.tau + 1)
+        self.balls = [self.model.body(f"projectile{i}").id for i in range(PROJECTILES)] if self.ex.projectile else []
+        self._thrown_at = [-1] * len(self.balls)
+        self._next_ball = 0
+        self.data = mujoco.MjData(self.model)
+        obs, _ = self.reset(seed, self.space.default_array)
+        self.obs_dim = int(obs.shape[0])
+        self.act_dim = int(self.nu)
+
+    def _motion(self, clip_id: str) -> CharacterMotion:
+        if clip_id not in self._motions:
+            # NOTE: played once through, never wrapped: the scheduler reschedules at the end
+            # anyway, and most "looping" mocap does not close (humanoid3d_walk's shoulders turn
+            # 0.5 rad across its seam), so a wrap put 14 rad/s spikes into the target velocities.
+            clip = self.library.clip(clip_id).with_(loop=False)
+            self._motions[clip_id] = CharacterMotion.from_clip(clip, self.ref_model)
+        return self._motions[clip_id]
+
+    def register_clip(self, clip_id: str, clip) -> None:
+        """Make a clip that is not in the task's set trackable by name (`reset(..., clip_id)`),
+        e.g. a file the project has never seen; it is never drawn. Raises ClipError when the
+        clip's joints do not fit the humanoid."""
+        from common.motion.errors import ClipError
+
+        if clip.character and clip.character != CHARACTER:
+            raise ClipError(f"clip is for the {clip.character!r} character, not {CHARACTER!r}; import it onto the "
+                            "humanoid first (morphmimic motion import ... --character humanoid)", path=clip_id)
+        self._motions[clip_id] = CharacterMotion.from_clip(clip.with_(loop=False), self.ref_model)
+        self.scheduler.extra_ids.add(clip_id)
+
+    # ---- state ----
+
+    def _target_kin(self, frame: TargetFrame) -> BodyKin:
+        d = self.ref_data
+        d.qpos[:], d.qvel[:] = frame.qpos, frame.qvel
+        mujoco.mj_kinematics(self.ref_model, d)
+        mujoco.mj_comPos(self.ref_model, d)
+        mujoco.mj_comVel(self.ref_model, d)
+        return read_kinematics(self.ref_model, d, self.bodies)
+
+    def _actual_kin(self) -> BodyKin:
+        # NOTE: after mj_step the body poses are those before the last integration; recompute
+        # them (kinematics and velocities only, no contacts) so state and targets are in step.
+        mujoco.mj_kinematics(self.model, self.data)
+        mujoco.mj_comPos(self.model, self.data)
+        mujoco.mj_comVel(self.model, self.data)
+        return read_kinematics(self.model, self.data, self.bodies)
+
+    @property
+    def qpos(self) -> np.ndarray:
+        """The character's qpos `[nq]` (without the projectile's)."""
+        return self.data.qpos[: self.nq]
+
+    def _observe(self, actual: BodyKin) -> np.ndarray:
+        targets = [self._target_kin(self.scheduler.frame(i)) for i in range(1, self.ex.tau + 1)]
+        return observation(actual, targets, self.params)
+
+    # ---- the Env contract ----
+
+    def reset(self, seed: int | None, params: np.ndarray, clip_id: str | None = None, start_s: float | None = None,
+              ) -> tuple[np.ndarray, dict]:
+        """Start an episode on `clip_id` (a balanced draw when None) at `start_s` (random when
+        None); reactive initialization places the character off the tracked frame."""
+        if seed is not None:
+            self.rng = np.random.default_rng(seed)
+        self.params = self.space.validate(params).astype(np.float64)
+        self.scheduler.begin(self.rng, clip_id or None, start_s)
+        offset = 0
+        if self.ex.reactive_init:
+            lo, hi = self.ex.rsis_frames
+            offset = int(self.rng.integers(lo, hi + 1)) * (1 if self.rng.random() < 0.5 else -1)
+        start = self.scheduler.frame(offset)
+        self.data = mujoco.MjData(self.model)
+        self.data.qpos[: self.nq] = start.qpos
+        self.data.qvel[: self.nv] = start.qvel
+        if self.ex.reactive_init:
+            r, a = self.ex.rsis_translation_m * math.sqrt(self.rng.random()), self.rng.uniform(0, 2 * math.pi)
+            self.data.qpos[0:2] += r * np.array([math.cos(a), math.sin(a)])
+            self.data.qvel[: self.nv] += self.rng.normal(0.0, self.ex.rsis_velocity_std, self.nv)
+        self._park_projectile()
+        lift_out_of_floor(self.model, self.data)
+        self.k = 0
+        self.grace = self.ex.catch_up_steps
+        self.last_terms: dict[str, float] = {}
+        return self._observe(self._actual_kin()), {"clip_id": self.scheduler.clip_id, "rsis_offset": offset}
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        a = np.nan_to_num(np.asarray(action, dtype=np.float64))
+        if self.ex.actuation == "torque":
+            self.data.ctrl[:] = np.clip(a, -1.0, 1.0)
+        else:
+            target = self.layout.to_vector(self.scheduler.frame(1).qpos)
+            self.data.ctrl[:] = target + self.ex.pd_action_scale * np.clip(a, -3.0, 3.0)
+        diverged = step_physics(self.model, self.data, self.cfg.substeps)
+        self.k += 1
+        if self.balls:
+            self._expire_projectiles()
+        if diverged:
+            return np.zeros(self.obs_dim, np.float32), 0.0, True, False, {"diverged": True, "ended_by": "divergence"}
+        rescheduled = self.scheduler.advance(self.rng, self.qpos.copy())
+        if rescheduled:
+            self.grace = self.k + self.ex.catch_up_steps
+        actual = self._actual_kin()
+        target_frame = self.scheduler.frame(0)
+        target = self._target_kin(target_frame)
+        errors, pos_err = self._errors(actual, target, target_frame)
+        terms = rw.reward_terms(errors, self.ex.reward_scales)
+        self.last_terms = terms
+        reward = rw.weighted_sum(terms, self.ex.reward_weights)
+        ended_by = rw.termination(terms, self.ex.reward_weights, self.ex.termination, self.ex.alpha)
+        terminated = ended_by is not None and self.k > self.grace
+        truncated = not terminated and (self.k >= self.cfg.episode_steps or self.scheduler.done)
+        info = {"diverged": False, "terms": terms, "ended_by": ended_by if terminated else None,
+                "rescheduled": rescheduled, **pos_err, **self.scheduler.status()}
+        return self._observe(actual), reward, terminated, truncated, info
+
+    def _errors(self, actual: BodyKin, target: BodyKin, frame: TargetFrame) -> tuple[dict[str, float], dict[str, float]]:
+        q, qr = self.qpos, frame.qpos
+        lay = self.layout
+        rel, rel_ref = actual.relative_positions(), target.relative_positions()
+        errors = {
+            "root_position": rw.com_error(actual.com, target.com),
+            "root_rotation": rw.root_rotation_error(q[3:7], qr[3:7]),
+            "joint_position": rw.joint_position_error(rel, rel_ref),
+            "joint_rotation": rw.joint_rotation_error(q[lay.ball_qpos], qr[lay.ball_qpos], q[lay.hinge_qpos], qr[lay.hinge_qpos]),
+            "joint_velocity": rw.joint_velocity_error(self.data.qvel[6 : self.nv], frame.qvel[6:]),
+        }
+        positions = {
+            "joint_error_m": float(np.mean(np.linalg.norm(rel - rel_ref, axis=1))),
+            "body_error_m": float(np.mean(np.linalg.norm(actual.pos - target.pos, axis=1))),
+        }
+        return errors, positions
+
+    # ---- perturbations for the zero-shot robustness tests ----
+
+    def scale_mass(self, factor: float) -> None:
+        """Make every body of the character `factor` times heavier (masses and inertias)."""
+        if not 0.05 <= factor <= 20.0:
+            raise ValueError(f"mass factor {factor} must be in [0.05, 20]")
+        n = self.ref_model.nbody
+        self.model.body_mass[:n] = self.base_mass[:n] * factor
+        self.model.body_inertia[:n] = self.base_inertia[:n] * factor
+
+    def _ball_slots(self, ball: int) -> tuple[int, int, int]:
+        """(qpos address, dof address, geom id) of a projectile body."""
+        jnt = self.model.body_jntadr[ball]
+        return int(self.model.jnt_qposadr[jnt]), int(self.model.jnt_dofadr[jnt]), int(self.model.body_geomadr[ball])
+
+    def _park_projectile(self, which: list[int] | None = None) -> None:
+        """Park balls (all by default): below the floor, at rest, weightless, colliding with nothing."""
+        for i in range(len(self.balls)) if which is None else which:
+            adr, dof, geom = self._ball_slots(self.balls[i])
+            self.data.qpos[adr : adr + 7] = [*PARKED, 1.0, 0.0, 0.0, 0.0]
+            self.data.qvel[dof : dof + 6] = 0.0
+            self.model.body_gravcomp[self.balls[i]] = 1.0
+            self._collides(i, False)
+            self._thrown_at[i] = -1
+
+    def _collides(self, i: int, on: bool) -> None:
+        """Switch ball i's contacts on or off. NOTE: MuJoCo's broadphase filters body pairs by the
+        body-level masks compiled from the geoms', so both levels are set."""
+        ball = self.balls[i]
+        geom = int(self.model.body_geomadr[ball])
+        self.model.geom_contype[geom] = self.model.geom_conaffinity[geom] = int(on)
+        self.model.body_contype[ball] = self.model.body_conaffinity[ball] = int(on)
+
+    def _expire_projectiles(self) -> None:
+        old = [i for i, k in enumerate(self._thrown_at) if k >= 0 and self.k - k >= PROJECTILE_LIFE_STEPS]
+        if old:
+            self._park_projectile(old)
+
+    def throw_projectile(self, speed_mps: float = 10.0, distance_m: float = 2.0, rng: np.random.Generator | None = None) -> None:
+        """Throw the next ball (`PROJECTILE`: 2 kg, 8 cm radius) at the character: it starts
+        `distance_m` away horizontally from the root, in a random direction, at the root's height
+        plus up to +-0.3 m, and flies at `speed_mps` aimed at where the centre of mass will be (the
+        root's velocity held over the flight), under gravity. A ball is
+        parked again 1 s after its throw; `PROJECTILES` balls are thrown in turn."""
+        if not self.balls:
+            raise ValueError("this environment has no projectile: build it with --task.executor.projectile")
+        if not (0.0 < speed_mps <= 100.0 and 0.0 < distance_m <= 20.0):
+            raise ValueError(f"projectile speed {speed_mps} m/s must be in (0, 100] and distance {distance_m} m in (0, 20]")
+        rng = rng or self.rng
+        i = self._next_ball
+        self._next_ball = (i + 1) % len(self.balls)
+        root = self.qpos[0:3].copy()
+        a = rng.uniform(0.0, 2.0 * math.pi)
+        start = root + np.array([distance_m * math.cos(a), distance_m * math.sin(a), rng.uniform(-0.3, 0.3)])
+        start[2] = max(start[2], PROJECTILE["radius_m"] + 0.05)
+        # NOTE: aimed where the centre of mass will be when the ball arrives (the root's current
+        # velocity held): the body's largest target, wherever a tumbling character's root is.
+        aim = self.data.subtree_com[1] + self.data.qvel[0:3] * (distance_m / speed_mps)
+        direction = aim - start
+        direction /= np.linalg.norm(direction)
+        adr, dof, geom = self._ball_slots(self.balls[i])
+        self.data.qpos[adr : adr + 7] = [*start, 1.0, 0.0, 0.0, 0.0]
+        self.data.qvel[dof : dof + 3] = speed_mps * direction
+        self.data.qvel[dof + 3 : dof + 6] = 0.0
+        self.model.body_gravcomp[self.balls[i]] = 0.0
+        self._collides(i, True)
+        self._thrown_at[i] = self.k

@@ -1,0 +1,97 @@
+"""`ExecutorConfig`: the settings of UniCon's motion executor task (METHOD.md B), kept apart from
+the shape tasks' fields; `TaskConfig.executor` carries it (`--task.executor.tau 2`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+
+@dataclass(frozen=True)
+class ExecutorConfig:
+    clips: tuple[str, ...] = ()
+    """Clip ids to track (empty: the `split` of every clip that plays on the humanoid,
+    `common.motion.library.clips_for`)."""
+    split: Literal["train", "test", "all"] = "train"
+    """Which part of UniCon's category-aware 80/20 split (by frames, rare classes to test first)
+    the task trains on when `clips` is empty."""
+    split_seed: int = 0
+    """Seed of the split (`common.motion.manifest.unicon_split`)."""
+    clip_draws: Literal["balancer", "uniform"] = "balancer"
+    """balancer: clips are drawn by walking the class tree (UniCon 5.1, eq. 8); uniform: every
+    clip equally likely (the ablation: the task relabels its clips so the balancer is flat)."""
+    tau: int = 1
+    """Target frames in the observation: X_t+1 .. X_t+tau (UniCon: 1)."""
+    actuation: Literal["torque", "pd"] = "torque"
+    """torque: the action is a torque per DOF, a in [-1, 1] times that DOF's effort factor
+    (UniCon); pd: the action is a deviation from the next target frame's joint angles, tracked by
+    the humanoid's PD (DeepMimic's gains), for the comparison."""
+    effort_scale: float = 1.0
+    """Multiplies every DOF's effort factor (`executor.EFFORT_70KG_NM` scaled to the body's mass)."""
+    passive_damping: float = 0.1
+    """torque: passive joint damping as a fraction of each joint's DeepMimic PD kd (hip 5,
+    neck 1 N m s/rad at 0.1), integrated implicitly by MuJoCo. Measured: with none, random
+    torques (std 0.37) diverged the simulation in 20 of 20 episodes within 4-10 control steps
+    (ball joints have no limits and nothing takes energy out); 0.05: 4 of 20; 0.1: 0 of 20."""
+    pd_action_scale: float = 0.5
+    """pd: rad of PD-target deviation per unit action."""
+    termination: Literal["per_term", "sum", "none"] = "per_term"
+    """per_term: end the episode as soon as any of the five reward terms falls below `alpha`
+    (UniCon's constrained objective, eq. 6); sum: only when the weighted sum falls below `alpha`
+    (the ablation); none: only the time limit and simulator divergence end it."""
+    alpha: float = 0.1
+    """Tolerance of the termination rule (UniCon: 0.1 for every term)."""
+    reward_weights: tuple[float, float, float, float, float] = (0.2, 0.2, 0.1, 0.4, 0.1)
+    """w_pr, w_qr, w_pj, w_qj, w_wj (UniCon eq. 5)."""
+    reward_scales: tuple[float, float, float, float, float] = (10.0, 2.0, 40.0, 2.0, 0.1)
+    """Kernel scales k of exp(-k err): COM position (DeepMimic 10), root rotation (UniCon 2),
+    joint positions (DeepMimic's 40 per four end effectors, see `unicon_rewards`), joint
+    rotations (DeepMimic 2), joint velocities (DeepMimic 0.1)."""
+    reactive_init: bool = True
+    """Reactive state initialization (UniCon 5.2): start `rsis_frames` control steps away from
+    the tracked frame with noise on root translation and velocities; off: start on the tracked
+    frame exactly (DeepMimic's reference state initialization)."""
+    rsis_frames: tuple[int, int] = (5, 10)
+    """Range of the frame offset of reactive initialization, in control steps (either side)."""
+    rsis_translation_m: float = 0.1
+    """Reactive initialization: the root starts up to this far (horizontally, uniform in a disc)
+    from the frame's root."""
+    rsis_velocity_std: float = 0.5
+    """Reactive initialization: Gaussian noise (m/s on the root, rad/s on every other DOF)."""
+    catch_up_steps: int = 30
+    """Training: the termination rule is suspended for this many control steps after an episode
+    starts and after a reschedule (0: never, UniCon as written). A reconstruction: UniCon says
+    a 5-10 step offset "does not lead to early termination", but measured here every start
+    broke a term at once: the offset itself puts r_pj below 0.1 (10 frames into a cartwheel),
+    and from the tracked frame exactly a zero-torque body breaks r_wj in one step (40 of 40
+    starts). With a grace of only the offset, a run's first 0.6 M steps ended every episode on
+    the step after the grace (60 of 60), leaving nothing to learn beyond it; 30 steps (0.5 s)
+    let the dense reward teach tracking first. Evaluation applies the rule from the first step."""
+    at_clip_end: Literal["reschedule", "stop"] = "reschedule"
+    """What the dataset scheduler does when a clip's end is reached: reschedule a random clip
+    and frame (training), or stop, which truncates the episode (evaluation)."""
+    speed: float = 1.0
+    """Playback speed of the target frames (robustness: 0.4 .. 1.6)."""
+    projectile: bool = False
+    """Add a projectile body to the scene (robustness); parked out of the way until thrown."""
+
+    def __post_init__(self) -> None:
+        if self.tau < 1:
+            raise ValueError(f"--task.executor.tau = {self.tau} must be >= 1")
+        if not 0.0 <= self.alpha < 1.0:
+            raise ValueError(f"--task.executor.alpha = {self.alpha} must be in [0, 1)")
+        if self.catch_up_steps < 0:
+            raise ValueError(f"--task.executor.catch-up-steps = {self.catch_up_steps} must be >= 0")
+        if self.passive_damping < 0:
+            raise ValueError(f"--task.executor.passive-damping = {self.passive_damping} must be >= 0")
+        if not self.effort_scale > 0:
+            raise ValueError(f"--task.executor.effort-scale = {self.effort_scale} must be > 0")
+        if not 0.05 <= self.speed <= 10.0:
+            raise ValueError(f"--task.executor.speed = {self.speed} must be in [0.05, 10]")
+        lo, hi = self.rsis_frames
+        if not 0 <= lo <= hi:
+            raise ValueError(f"--task.executor.rsis-frames = {self.rsis_frames} must be 0 <= low <= high")
+        if self.rsis_translation_m < 0 or self.rsis_velocity_std < 0:
+            raise ValueError("--task.executor.rsis-translation-m and --task.executor.rsis-velocity-std must be >= 0")
+        if len(self.reward_weights) != 5 or len(self.reward_scales) != 5:
+            raise ValueError("--task.executor.reward-weights and --task.executor.reward-scales take 5 values each")

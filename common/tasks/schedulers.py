@@ -1,0 +1,165 @@
+"""Schedulers: where the executor's target frames come from (UniCon 2020's high level, METHOD.md B
+"Schedulers"; DESIGN.md "Schedulers, play and the studio").
+
+The executor task asks its scheduler for target frames only through `Scheduler`: `begin` a
+schedule, `frame(i)` for the frame i control steps from now (negative i: the past, for reactive
+initialization), `advance` one control step. A frame is a pose and velocity of the character's
+own model in the world (`TargetFrame`), so any source (a clip, a stitched queue, a keyboard
+generator, poses from video) plugs in without touching the task or retraining the policy.
+
+`DatasetScheduler` is the one training uses (UniCon 5.1): a clip (drawn by the motion balancer)
+from a random frame, rescheduled to another random clip and frame at the clip's end, or, for
+evaluation, stopping there. A rescheduled clip is placed where the character is: its root at the
+new frame is moved onto the character's horizontal position and heading.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable, Protocol, Sequence
+
+import mujoco
+import numpy as np
+
+from common.motion.reference import CharacterMotion
+from common.tasks.observations import heading, quat_to_mat, yaw_matrix
+
+MotionFn = Callable[[str], CharacterMotion]
+"""Returns a clip played on the character's model (cached by the caller)."""
+
+
+@dataclass(frozen=True)
+class TargetFrame:
+    """One target frame of the character: qpos `[nq]` and qvel `[nv]` in MuJoCo's layout, world frame."""
+
+    qpos: np.ndarray
+    qvel: np.ndarray
+
+
+class Scheduler(Protocol):
+    def begin(self, rng: np.random.Generator, clip_id: str | None = None, start_s: float | None = None,
+              align_to: np.ndarray | None = None) -> None:
+        """Start a schedule: a clip (drawn when None) from `start_s` (random when None), placed at
+        the character's pose `align_to` (qpos) when given, else where the clip has it."""
+
+    def frame(self, i: int) -> TargetFrame:
+        """The target frame i control steps from now (i may be negative)."""
+
+    def advance(self, rng: np.random.Generator, qpos: np.ndarray) -> bool:
+        """Move one control step on; `qpos` is the character's pose now. Returns True when the
+        schedule jumped (a reschedule), so the caller knows the targets are discontinuous."""
+
+    @property
+    def done(self) -> bool:
+        """The schedule has no next frame (a stopping scheduler at its end)."""
+
+    def status(self) -> dict:
+        """What is being tracked, for logs and evaluation (clip id, time in the clip)."""
+
+
+def yaw_quat(yaw: float) -> np.ndarray:
+    return np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
+
+
+def place(qpos: np.ndarray, qvel: np.ndarray, yaw: float, shift: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Frames `[N, nq]`, `[N, nv]` rotated by `yaw` about world z, then shifted by `shift` `[3]`.
+    A free joint's linear velocity is in the world frame (rotated), its angular one in the body
+    frame (unchanged)."""
+    rot = yaw_matrix(yaw)
+    q, v = qpos.copy(), qvel.copy()
+    q[:, 0:3] = q[:, 0:3] @ rot.T + shift
+    yq = yaw_quat(yaw)
+    for row in q:
+        out = np.zeros(4)
+        mujoco.mju_mulQuat(out, yq, row[3:7])
+        row[3:7] = out
+    v[:, 0:3] = v[:, 0:3] @ rot.T
+    return q, v
+
+
+class DatasetScheduler:
+    """Random clip and frame from a clip set, rescheduled (or stopped) at the clip's end.
+
+    The frames of the current schedule are sampled once on the control grid t0 + k dt speed
+    (vectorized: per-step slerps in Python would cost more than the physics), from
+    `lookback` steps before the start to the clip's end plus the lookahead; velocities are
+    centred differences of neighbouring rows (`mj_differentiatePos`), in real time, so a
+    faster playback has faster targets.
+    """
+
+    def __init__(self, model: mujoco.MjModel, motion: MotionFn, clip_ids: Sequence[str], probabilities: np.ndarray,
+                 dt_s: float, *, speed: float = 1.0, at_end: str = "reschedule", lookback: int = 12, lookahead: int = 2):
+        if not clip_ids:
+            raise ValueError("DatasetScheduler needs at least one clip")
+        if at_end not in ("reschedule", "stop"):
+            raise ValueError(f"at_end {at_end!r} is not one of reschedule, stop")
+        self.model, self.motion = model, motion
+        self.clip_ids = tuple(clip_ids)
+        self.probabilities = np.asarray(probabilities, dtype=np.float64)
+        self.dt, self.speed, self.at_end = float(dt_s), float(speed), at_end
+        self.lookback, self.lookahead = int(lookback), int(lookahead)
+        self.clip_id = ""
+        self._done = False
+        self.reschedules = 0
+        self.extra_ids: set[str] = set()
+        """Clips that may be begun by name but are never drawn (evaluation on unseen clips)."""
+
+    # ---- the Scheduler contract ----
+
+    def begin(self, rng: np.random.Generator, clip_id: str | None = None, start_s: float | None = None,
+              align_to: np.ndarray | None = None) -> None:
+        if clip_id is None or clip_id == "":
+            clip_id = self.clip_ids[int(rng.choice(len(self.clip_ids), p=self.probabilities))]
+        elif clip_id not in self.clip_ids and clip_id not in self.extra_ids:
+            raise ValueError(f"clip {clip_id!r} is not in this scheduler's set ({len(self.clip_ids)} clips: "
+                             f"{', '.join(self.clip_ids[:6])}{', ...' if len(self.clip_ids) > 6 else ''})")
+        m = self.motion(clip_id)
+        duration = m.duration_s
+        if start_s is None:
+            # NOTE: leave at least a few control steps before the end so a schedule is never empty.
+            start_s = float(rng.uniform(0.0, max(0.0, duration - 3 * self.dt * self.speed)))
+        if not 0.0 <= start_s <= duration:
+            raise ValueError(f"start {start_s} s is outside clip {clip_id!r} (0 .. {duration:.3f} s)")
+        self.clip_id, self._motion, self.t0 = clip_id, m, float(start_s)
+        self.k = 0
+        self._done = False
+        steps_left = int(math.floor((duration - start_s) / (self.dt * self.speed) + 1e-9))
+        self.last_k = max(steps_left, 1)
+        rows = np.arange(-self.lookback - 1, self.last_k + self.lookahead + 2)
+        q = np.atleast_2d(m.qpos(self.t0 + rows * self.dt * self.speed))
+        v = np.zeros((len(rows), self.model.nv))
+        for r in range(1, len(rows) - 1):
+            mujoco.mj_differentiatePos(self.model, v[r], 2.0 * self.dt, q[r - 1], q[r + 1])
+        v[0], v[-1] = v[1], v[-2]
+        yaw, shift = 0.0, np.zeros(3)
+        if align_to is not None:
+            start = q[self.lookback + 1]
+            yaw = heading(quat_to_mat(align_to[3:7])) - heading(quat_to_mat(start[3:7]))
+            shift = np.zeros(3)
+            shift[:2] = align_to[:2] - (yaw_matrix(yaw) @ start[0:3])[:2]
+        self._q, self._v = place(q, v, yaw, shift)
+        self._row0 = self.lookback + 1
+
+    def frame(self, i: int) -> TargetFrame:
+        row = int(np.clip(self._row0 + self.k + i, 0, len(self._q) - 1))
+        return TargetFrame(self._q[row], self._v[row])
+
+    def advance(self, rng: np.random.Generator, qpos: np.ndarray) -> bool:
+        self.k += 1
+        if self.k < self.last_k:
+            return False
+        if self.at_end == "stop":
+            self._done = True
+            return False
+        self.reschedules += 1
+        self.begin(rng, None, None, align_to=qpos)
+        return True
+
+    @property
+    def done(self) -> bool:
+        return self._done
+
+    def status(self) -> dict:
+        return {"clip_id": self.clip_id, "clip_time_s": self.t0 + self.k * self.dt * self.speed,
+                "clip_duration_s": self._motion.duration_s, "steps_left": self.last_k - self.k}

@@ -1,0 +1,299 @@
+"""The executor task (UniCon 2020, METHOD.md B): reward terms and termination on hand-made
+states, the observation's invariance to where the character stands and faces, reactive state
+initialization within its bounds, torque actuation, schedulers, and clip splits."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import mujoco
+import numpy as np
+import pytest
+
+from common.tasks import executor_rewards as rw
+from common.tasks.base import TaskConfig
+from common.tasks.executor import ExecutorEnv, effort_factors, executor_clips, humanoid_clips
+from common.tasks.executor_config import ExecutorConfig
+from common.tasks.executor_obs import BodyKin, agent_features, observation, target_root_pose
+from common.tasks.observations import yaw_matrix
+from common.tasks.registry import make_env
+
+CFG = TaskConfig(name="executor", control_hz=60.0, sim_hz=240.0, episode_s=5.0, parameterization="height_thickness",
+                 vary_shape=False, executor=ExecutorConfig())
+
+
+def cfg_with(**changes) -> TaskConfig:
+    return dataclasses.replace(CFG, executor=dataclasses.replace(CFG.executor, **changes))
+
+
+@pytest.fixture(scope="module")
+def env() -> ExecutorEnv:
+    return make_env(CFG, seed=0)
+
+
+# ---- reward terms and termination on hand-made states ----
+
+def test_each_term_by_hand():
+    # COM 0.3 m off: exp(-10 * 0.09)
+    assert rw.com_error([0, 0, 1.0], [0.3, 0, 1.0]) == pytest.approx(0.09)
+    # root turned 0.5 rad about z: angle^2 = 0.25
+    q = [math.cos(0.25), 0, 0, math.sin(0.25)]
+    assert rw.root_rotation_error(q, [1, 0, 0, 0]) == pytest.approx(0.25)
+    # 14 bodies, each 0.1 m off: (4 / 14) * 14 * 0.01 = 0.04
+    assert rw.joint_position_error(np.full((14, 3), 0.0) + [0.1, 0, 0], np.zeros((14, 3))) == pytest.approx(0.04)
+    # one ball joint turned 0.2 rad, one hinge 0.3 rad off: 0.04 + 0.09
+    ball = np.array([[math.cos(0.1), math.sin(0.1), 0, 0]])
+    assert rw.joint_rotation_error(ball, np.array([[1.0, 0, 0, 0]]), [0.3], [0.0]) == pytest.approx(0.13)
+    assert rw.joint_velocity_error([1.0, 2.0], [0.0, 0.0]) == pytest.approx(5.0)
+    errors = {"root_position": 0.09, "root_rotation": 0.25, "joint_position": 0.04, "joint_rotation": 0.13, "joint_velocity": 5.0}
+    terms = rw.reward_terms(errors, (10.0, 2.0, 40.0, 2.0, 0.1))
+    expected = {"root_position": math.exp(-0.9), "root_rotation": math.exp(-0.5), "joint_position": math.exp(-1.6),
+                "joint_rotation": math.exp(-0.26), "joint_velocity": math.exp(-0.5)}
+    assert terms == pytest.approx(expected)
+    w = (0.2, 0.2, 0.1, 0.4, 0.1)
+    assert rw.weighted_sum(terms, w) == pytest.approx(sum(wi * expected[t] for wi, t in zip(w, rw.TERMS)))
+    assert rw.weighted_sum({t: 1.0 for t in rw.TERMS}, w) == pytest.approx(1.0)
+
+
+def test_termination_rules():
+    w = (0.2, 0.2, 0.1, 0.4, 0.1)
+    good = {t: 0.9 for t in rw.TERMS}
+    one_bad = dict(good, joint_velocity=0.05)
+    assert rw.termination(good, w, "per_term", 0.1) is None
+    assert rw.termination(one_bad, w, "per_term", 0.1) == "joint_velocity"
+    # the weighted sum of one_bad is 0.815: the sum rule (the ablation) lets it go on
+    assert rw.termination(one_bad, w, "sum", 0.1) is None
+    assert rw.termination({t: 0.05 for t in rw.TERMS}, w, "sum", 0.1) == "sum"
+    assert rw.termination({t: 0.0 for t in rw.TERMS}, w, "none", 0.1) is None
+    with pytest.raises(ValueError, match="termination rule 'x'"):
+        rw.termination(good, w, "x", 0.1)
+
+
+# ---- the observation ----
+
+def random_kin(rng, n=15) -> BodyKin:
+    rot = np.stack([np.linalg.qr(rng.normal(size=(3, 3)))[0] for _ in range(n)])
+    rot *= np.sign(np.linalg.det(rot))[:, None, None]
+    return BodyKin(rng.normal(size=(n, 3)), rot, rng.normal(size=(n, 3)), rng.normal(size=(n, 3)), rng.normal(size=3))
+
+
+def moved(kin: BodyKin, yaw: float, shift: np.ndarray) -> BodyKin:
+    r = yaw_matrix(yaw)
+    return BodyKin(kin.pos @ r.T + shift, np.einsum("ij,bjk->bik", r, kin.rot), kin.lin @ r.T, kin.ang @ r.T, kin.com @ r.T + shift)
+
+
+def test_observation_unchanged_under_rigid_translation_and_yaw():
+    rng = np.random.default_rng(1)
+    actual, target = random_kin(rng), random_kin(rng)
+    params = np.array([1.0, 1.2])
+    base = observation(actual, [target], params)
+    for yaw, shift in [(0.7, np.array([3.0, -2.0, 0.0])), (-2.5, np.array([-10.0, 4.0, 0.0]))]:
+        again = observation(moved(actual, yaw, shift), [moved(target, yaw, shift)], params)
+        np.testing.assert_allclose(again, base, atol=1e-5)
+    # a negative control: moving only the target changes y(X~; X)
+    assert not np.allclose(target_root_pose(actual, moved(target, 0.7, np.zeros(3))), target_root_pose(actual, target))
+    # and the root height is observed (a vertical move is not invisible)
+    assert agent_features(moved(actual, 0.0, np.array([0, 0, 0.5])))[0] == pytest.approx(actual.pos[0, 2] + 0.5)
+
+
+def test_env_observation_layout(env):
+    tau2 = make_env(cfg_with(tau=2), seed=0)
+    per_frame = (env.obs_dim - env.space.dim) // 2 - 4  # o(X) + (o + y) with y of 9 numbers
+    assert env.space.dim + per_frame + (per_frame + 9) == env.obs_dim
+    assert tau2.obs_dim == env.obs_dim + per_frame + 9
+    assert env.act_dim == 28
+
+
+def rigid(qpos: np.ndarray, yaw: float, shift: np.ndarray) -> np.ndarray:
+    out = qpos.copy()
+    out[0:3] = yaw_matrix(yaw) @ qpos[0:3] + shift
+    mujoco.mju_mulQuat(out[3:7], np.array([math.cos(yaw / 2), 0, 0, math.sin(yaw / 2)]), qpos[3:7].copy())
+    return out
+
+
+def test_env_observation_invariant_to_where_the_episode_starts():
+    """The character and its schedule moved and turned together observe exactly the same."""
+    env = make_env(cfg_with(reactive_init=False), seed=0)
+    clip = env.scheduler.clip_ids[0]
+    obs_a, _ = env.reset(0, env.space.default_array, clip, 0.3)
+    qpos, qvel, start = env.data.qpos.copy(), env.data.qvel.copy(), env.scheduler.frame(0).qpos.copy()
+    for yaw, shift in [(1.1, np.array([2.0, -1.0, 0.0])), (-2.9, np.array([-7.0, 5.0, 0.0]))]:
+        env.scheduler.begin(env.rng, clip, env.scheduler.t0, align_to=rigid(start, yaw, shift))
+        env.data.qpos[:] = rigid(qpos, yaw, shift)
+        env.data.qvel[:] = qvel
+        env.data.qvel[0:3] = yaw_matrix(yaw) @ qvel[0:3]
+        obs_b = env._observe(env._actual_kin())
+        np.testing.assert_allclose(obs_b, obs_a, atol=1e-5)
+    # negative control: moving the character alone changes the observation
+    env.data.qpos[:] = rigid(qpos, 0.0, np.array([0.5, 0.0, 0.0]))
+    assert not np.allclose(env._observe(env._actual_kin()), obs_a, atol=1e-3)
+
+
+# ---- reactive state initialization ----
+
+def test_reactive_initialization_within_bounds():
+    env = make_env(cfg_with(rsis_frames=(5, 10), rsis_translation_m=0.1), seed=0)
+    offsets = []
+    for seed in range(30):
+        _, info = env.reset(seed, env.space.default_array)
+        offsets.append(info["rsis_offset"])
+        assert 5 <= abs(info["rsis_offset"]) <= 10
+        assert env.grace == 30
+    assert min(offsets) < 0 < max(offsets)
+    # without it: the character starts on the tracked frame (up to the floor lift)
+    plain = make_env(cfg_with(reactive_init=False, catch_up_steps=0), seed=0)
+    _, info = plain.reset(0, plain.space.default_array)
+    assert info["rsis_offset"] == 0 and plain.grace == 0
+    frame = plain.scheduler.frame(0)
+    np.testing.assert_allclose(plain.data.qpos[3:], frame.qpos[3:], atol=1e-12)
+    np.testing.assert_allclose(plain.data.qpos[0:2], frame.qpos[0:2], atol=1e-12)
+    np.testing.assert_allclose(plain.data.qvel, frame.qvel, atol=1e-12)
+
+
+def test_reactive_translation_noise_is_bounded():
+    env = make_env(cfg_with(rsis_frames=(0, 0), rsis_velocity_std=0.0, rsis_translation_m=0.1), seed=0)
+    for seed in range(20):
+        env.reset(seed, env.space.default_array)
+        frame = env.scheduler.frame(0)
+        assert np.linalg.norm(env.data.qpos[0:2] - frame.qpos[0:2]) <= 0.1 + 1e-12
+
+
+# ---- actuation, episodes ----
+
+def test_torque_actuation_applies_effort_times_action(env):
+    env.reset(0, env.space.default_array)
+    a = np.zeros(env.act_dim)
+    a[0] = 0.5
+    env.data.ctrl[:] = a
+    mujoco.mj_forward(env.model, env.data)
+    assert env.data.actuator_force[0] == pytest.approx(0.5 * env.efforts[0])
+    assert np.allclose(env.data.actuator_force[1:], 0.0)
+    efforts = effort_factors(env.model, 45.0)
+    assert efforts.min() == pytest.approx(100.0 * 45 / 70) and efforts.max() == pytest.approx(600.0 * 45 / 70)
+
+
+def test_episode_ends_by_a_term_and_truncates_at_clip_end():
+    env = make_env(cfg_with(reactive_init=False, at_clip_end="stop", termination="none"), seed=0)
+    clip = env.scheduler.clip_ids[0]
+    env.reset(0, env.space.default_array, clip, None)
+    steps_left = env.scheduler.status()["steps_left"]
+    for k in range(steps_left + 5):
+        _, r, term, trunc, info = env.step(np.zeros(env.act_dim))
+        assert np.isfinite(r) and 0.0 <= r <= 1.0 + 1e-9
+        if term or trunc:
+            break
+    assert trunc and not term and k + 1 == steps_left
+    # per-term termination: a ragdoll (zero torque) loses some term within a second
+    env = make_env(cfg_with(reactive_init=False, catch_up_steps=0), seed=0)
+    env.reset(0, env.space.default_array)
+    for _ in range(60):
+        _, _, term, trunc, info = env.step(np.zeros(env.act_dim))
+        if term:
+            break
+    assert term and info["ended_by"] in rw.TERMS and info["terms"][info["ended_by"]] < 0.1
+
+
+def test_random_torques_do_not_diverge():
+    env = make_env(cfg_with(termination="none"), seed=0)
+    rng = np.random.default_rng(0)
+    for seed in range(4):
+        env.reset(seed, env.space.default_array)
+        for _ in range(120):
+            _, _, term, trunc, info = env.step(rng.normal(0.0, 0.37, env.act_dim))
+            assert not info["diverged"]
+            if trunc:
+                break
+
+
+def test_pd_variant_tracks_better_than_a_ragdoll():
+    """PD targets on the reference with zero actions keep all terms up longer than zero torque."""
+    lengths = {}
+    for actuation in ("pd", "torque"):
+        env = make_env(cfg_with(actuation=actuation, reactive_init=False, catch_up_steps=0), seed=0)
+        total = 0
+        for seed in range(4):
+            env.reset(seed, env.space.default_array)
+            for k in range(120):
+                _, _, term, trunc, _ = env.step(np.zeros(env.act_dim))
+                if term or trunc:
+                    break
+            total += k + 1
+        lengths[actuation] = total
+    assert lengths["pd"] > lengths["torque"]
+
+
+# ---- clips, split, scheduler ----
+
+def test_train_and_test_splits_are_disjoint_and_cover_the_library():
+    train = dict(executor_clips(cfg_with(split="train")))
+    test = dict(executor_clips(cfg_with(split="test")))
+    every = dict(humanoid_clips())
+    assert not set(train) & set(test) and set(train) | set(test) == set(every)
+    assert len(test) >= 1 and len(train) > len(test)
+    uniform = executor_clips(cfg_with(split="train", clip_draws="uniform"))
+    assert {label for _, label in uniform} == {"root/all"}
+
+
+def test_unknown_clip_is_a_clear_error():
+    with pytest.raises(ValueError, match="do not play on the humanoid"):
+        executor_clips(cfg_with(clips=("nope",)))
+    env = make_env(CFG, seed=0)
+    with pytest.raises(ValueError, match="not in this scheduler's set"):
+        env.reset(0, env.space.default_array, "mass/walk")
+
+
+def test_dataset_scheduler_reschedules_at_the_clip_end(env):
+    env.reset(0, env.space.default_array)
+    s = env.scheduler
+    n = s.status()["steps_left"]
+    before = s.reschedules
+    qpos = env.qpos.copy()
+    for _ in range(n):
+        jumped = s.advance(env.rng, qpos)
+    assert jumped and s.reschedules == before + 1
+    # the new clip starts under the character: same horizontal position
+    np.testing.assert_allclose(s.frame(0).qpos[0:2], qpos[0:2], atol=1e-9)
+
+
+def test_config_rejects_bad_values():
+    for bad in (dict(tau=0), dict(alpha=1.5), dict(effort_scale=0.0), dict(speed=0.0), dict(rsis_frames=(5, 2)),
+                dict(passive_damping=-1.0), dict(catch_up_steps=-1)):
+        with pytest.raises(ValueError, match="--task.executor"):
+            ExecutorConfig(**bad)
+
+
+def test_projectiles_start_parked_and_hit_the_character():
+    from common.tasks.executor import PROJECTILES
+
+    env = make_env(cfg_with(projectile=True, reactive_init=False, termination="none", actuation="pd"), seed=0)
+    plain = make_env(cfg_with(reactive_init=False, termination="none", actuation="pd"), seed=0)
+    env.reset(0, env.space.default_array, env.scheduler.clip_ids[0], 0.2)
+    plain.reset(0, plain.space.default_array, plain.scheduler.clip_ids[0], 0.2)
+    np.testing.assert_allclose(env.qpos, plain.qpos, atol=1e-12)  # parked balls touch nothing
+    char_bodies = set(range(1, env.ref_model.nbody))
+    hit = False
+    for k in range(40):
+        if k % 2 == 0:
+            env.throw_projectile(10.0, 2.0)
+        env.step(np.zeros(env.act_dim))
+        for c in env.data.contact[: env.data.ncon]:
+            b = {int(env.model.geom_bodyid[c.geom1]), int(env.model.geom_bodyid[c.geom2])}
+            hit |= bool(b & set(env.balls)) and bool(b & char_bodies)
+    assert hit
+    assert env._next_ball == 20 % PROJECTILES
+    with pytest.raises(ValueError, match="no projectile"):
+        plain.throw_projectile()
+
+
+def test_termination_waits_for_the_catch_up_steps():
+    """A ragdoll breaks a term at once, but the episode is ended only after the grace."""
+    env = make_env(cfg_with(reactive_init=False, catch_up_steps=12), seed=0)
+    env.reset(0, env.space.default_array)
+    for k in range(1, 60):
+        _, _, term, trunc, info = env.step(np.zeros(env.act_dim))
+        if k <= 12:
+            assert not term
+        if term:
+            break
+    assert term and k > 12
