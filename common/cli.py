@@ -11,8 +11,9 @@ import sys
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("learner.main", "train a controller (same as `python -m learner.main`)"),
-    "evaluate": ("learner.evaluate", "evaluate a checkpoint over random shapes (the paper's protocol)"),
-    "ablation": ("learner.ablation", "compare checkpoints on the same shapes: the Won & Lee ablation table"),
+    "evaluate": ("learner.evaluate", "evaluate a checkpoint: random shapes (Won & Lee) or, for the executor, clips by split (UniCon)"),
+    "ablation": ("learner.ablation", "compare checkpoints on the same shapes (or clips): the ablation table"),
+    "robustness": ("learner.robustness", "zero-shot robustness: speed, projectiles, mass (UniCon Table 2)"),
     "character": ("common.characters.cli", "build a character from a preset and shape values; write MJCF and PNG"),
     "motion": ("common.motion.cli", "import, view and check motion clips"),
     "bench": ("common.bench", "benchmarks: throughput | characters | episodes | sampler | soak"),

@@ -11,6 +11,9 @@ variation. Each checkpoint is evaluated by `morphmimic evaluate` into `<out>/<ru
 `<run name>-<iteration>/` when several checkpoints of one run are compared (an existing
 `results.json` there with the same protocol is reused); the table goes to `<out>/ablation.md`
 and `<out>/ablation.json` and is printed.
+
+On motion executor checkpoints (task "executor") the UniCon ablation table is made instead
+(`learner/executor_ablation.py`: options --clips, --starts, --workers, --out).
 """
 
 from __future__ import annotations
@@ -79,6 +82,10 @@ def table(rows: list[dict]) -> str:
 
 
 def main(argv: list[str]) -> int:
+    if eval_core.names_executor(argv, "--checkpoints"):
+        from learner import executor_ablation
+
+        return executor_ablation.main(argv)
     p = argparse.ArgumentParser(prog="morphmimic ablation", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--checkpoints", nargs="+", required=True, help="checkpoints or run directories to compare")
@@ -89,6 +96,9 @@ def main(argv: list[str]) -> int:
     p.add_argument("--workers", type=cli_args.positive_int, default=1)
     p.add_argument("--map-params", nargs=2, default=None, metavar=("X", "Y"))
     args = p.parse_args(argv)
+    executors = [c for c in args.checkpoints if eval_core.load(c).cfg.task.name == "executor"]
+    if executors:
+        p.error(f"--checkpoints {' '.join(executors)}: executor checkpoints; compare them with executor checkpoints only")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rows = [evaluate_one(c, out, args, folder) for c, folder in zip(args.checkpoints, _folders(args.checkpoints))]

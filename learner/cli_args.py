@@ -1,5 +1,5 @@
-"""argparse `type=` converters of the evaluation commands (evaluate, ablation, learning_curve,
-morph_demo): each turns bad input into a usage error that names the value and what is allowed,
+"""argparse `type=` converters of the evaluation commands (evaluate, ablation, robustness,
+learning_curve, morph_demo): each turns bad input into a usage error that names the value and what is allowed,
 before any checkpoint is loaded or any episode run."""
 
 from __future__ import annotations
@@ -92,3 +92,15 @@ def morph_schedule(text: str) -> list[tuple[float, dict[str, float]]]:
             raise argparse.ArgumentTypeError(f"keyframe times {[kk[0] for kk in keys] + [t]} must be strictly increasing")
         keys.append((float(t), {str(n): float(v) for n, v in k[1].items()}))
     return keys
+
+
+def clip_source(text: str) -> str:
+    """An executor clip to evaluate: a humanoid clip id, a clip file (.npz, .bvh, DeepMimic
+    .txt/.json) or a folder of `.npz` clips (`learner.executor_eval.classify_clip_value`)."""
+    from learner.executor_eval import ClipSelectionError, classify_clip_value
+
+    try:
+        classify_clip_value(text)
+    except ClipSelectionError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text

@@ -200,17 +200,25 @@ def evaluate(loaded: Loaded, shapes: np.ndarray, episode_s: float, seed: int, wo
     results in row order. `workers` > 1 uses processes."""
     jobs = [(i, shapes[i], seed + i) for i in range(len(shapes))]
     init = (str(loaded.path), dict(task_overrides or {}), episode_s, box_scale)
+    return run_jobs(_init_worker, init, _work, jobs, workers, progress)
+
+
+def run_jobs(init: Callable, init_args: tuple, work: Callable[[Any], dict], jobs: list, workers: int,
+             progress: Callable[[int, int], None] | None = None) -> list[dict]:
+    """`work(job)` for every job, in this process (`workers` <= 1) or in a pool of forked
+    processes each set up once by `init(*init_args)`; results (dicts with an "index") sorted by
+    their index. `progress(done, total)` is called after each job."""
     results: list[dict] = []
     if workers <= 1:
-        _init_worker(*init)
+        init(*init_args)
         for job in jobs:
-            results.append(_work(job))
+            results.append(work(job))
             if progress:
                 progress(len(results), len(jobs))
     else:
         ctx = multiprocessing.get_context("fork")
-        with ctx.Pool(workers, initializer=_init_worker, initargs=init) as pool:
-            for res in pool.imap_unordered(_work, jobs):
+        with ctx.Pool(min(workers, len(jobs)), initializer=init, initargs=init_args) as pool:
+            for res in pool.imap_unordered(work, jobs):
                 results.append(res)
                 if progress:
                     progress(len(results), len(jobs))
@@ -241,3 +249,27 @@ def summarize(results: list[dict], space, n_shape: int) -> dict[str, Any]:
         "falls_by_body": dict(sorted(by_body.items(), key=lambda kv: (-kv[1], kv[0]))),
         "falls_by_ref_root_range": falls_by_root_range(results),
     }
+
+
+EXECUTOR_ONLY_OPTIONS = ("--clips", "--starts")
+"""Options only the motion executor's evaluation commands take."""
+
+
+def names_executor(argv: list[str], checkpoint_option: str) -> bool:
+    """Whether an evaluation command's arguments are for a motion executor: they use an
+    executor-only option, or the (first) checkpoint given by `checkpoint_option` is one. A
+    checkpoint that cannot be loaded answers False (the shape command then reports it)."""
+    if any(a.split("=", 1)[0] in EXECUTOR_ONLY_OPTIONS for a in argv):
+        return True
+    import argparse
+
+    pre = argparse.ArgumentParser(add_help=False)
+    pre.add_argument(checkpoint_option, nargs="+", default=[])
+    known, _ = pre.parse_known_args(argv)
+    paths = getattr(known, checkpoint_option.lstrip("-").replace("-", "_"))
+    if not paths:
+        return False
+    try:
+        return load(paths[0]).cfg.task.name == "executor"
+    except SystemExit:
+        return False

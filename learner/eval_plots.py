@@ -70,11 +70,17 @@ def plot_return_map(space: ParamSpace, params: np.ndarray, values: np.ndarray, f
     ax.set_xlabel(space.names[i])
     ax.set_ylabel(space.names[j])
     ax.set_title(title or f"measured return (min/mean {uniformity(grid):.2f})", fontsize=9)
+    save_figure(fig, path)
+    return grid
+
+
+def save_figure(fig, path: Path) -> Path:
+    """Lay out, write (making the folder) and close a matplotlib figure; returns `path`."""
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)
     plt.close(fig)
-    return grid
+    return path
 
 
 def vm_of(sampler_state: dict[str, Any], train_space: ParamSpace, params: np.ndarray) -> np.ndarray | None:

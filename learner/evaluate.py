@@ -11,6 +11,9 @@ shape: parameters, return, task reward, fell, the bodies whose floor contact end
 Vm), `summary.md` (with the falls counted by body), `map_return.png`
 (measured return binned over two shape parameters), `map_vm.png` (the sampler's marginal value
 from the checkpoint), `best.png` / `worst.png` strips (and GIFs with `--gif`).
+
+A motion executor checkpoint (task "executor", or the options --clips / --starts) is evaluated
+per clip instead: `learner/executor_report.py` (UniCon's protocol, METHOD.md B "Evaluation").
 """
 
 from __future__ import annotations
@@ -109,6 +112,10 @@ _NOT_MORPH = ("shapes", "seed", "episode_s", "workers", "box_scale", "map_params
 
 
 def main(argv: list[str]) -> int:
+    if eval_core.names_executor(argv, "--checkpoint"):
+        from learner import executor_report
+
+        return executor_report.main(argv)
     args = parse(argv)
     if args.morph:
         from learner import morph_demo
