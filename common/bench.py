@@ -7,6 +7,7 @@ import sys
 
 BENCHMARKS: dict[str, tuple[str, str]] = {
     "throughput": ("learner.bench_throughput", "end-to-end collection vs pure simulation, learner share, transport bytes/s"),
+    "learner": ("learner.bench_learner", "PPO update per minibatch step: the reference loop vs PPO.update, same data"),
     "characters": ("common.characters.bench", "build/compile per shape, on-the-fly change, sim cost per control step"),
     "episodes": ("common.tasks.bench", "per shape task: reset on a new body vs a control step, and the resets' share"),
     "sampler": ("sampler.bench", "MCMC refill time vs a policy iteration, draw latency through the socket"),

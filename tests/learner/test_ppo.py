@@ -211,3 +211,96 @@ def test_resumed_step_size_follows_the_config_unless_the_schedule_adapts_it(sche
     assert saved.lr != pytest.approx(1e-4)
     assert resumed.lr == pytest.approx(expected)
     assert all(g["lr"] == pytest.approx(expected) for g in resumed.optimizer.param_groups)
+
+
+def _twin_updates(ppo_cfg: PPOConfig, policy_cfg: PolicyConfig, obs_dim: int, act_dim: int, T: int, B: int, updates: int = 1):
+    """The same networks, optimizer state and data through `reference_update` and `PPO.update`."""
+    import copy
+
+    from learner.ppo_reference import reference_update
+
+    torch.manual_seed(0)
+    policy, value = GaussianPolicy(obs_dim, act_dim, policy_cfg), ValueNet(obs_dim, policy_cfg)
+    g = torch.Generator().manual_seed(5)
+    obs = 3.0 * torch.randn(T, B, obs_dim, generator=g) + torch.randn(obs_dim, generator=g)
+    with torch.no_grad():
+        dist = policy.distribution(obs)
+        actions = dist.mean + dist.stddev * torch.randn(dist.mean.shape, generator=g)
+        logp = dist.log_prob(actions).sum(-1)
+    terminated = torch.rand(T, B, generator=g) < 0.05
+    truncated = (torch.rand(T, B, generator=g) < 0.02) & ~terminated
+    batch = Batch(obs, 3.0 * torch.randn(T, B, obs_dim, generator=g), actions, logp - 0.05 * torch.rand(T, B, generator=g),
+                  5 * torch.rand(T, B, generator=g), terminated, truncated)
+    ref, new = PPO(policy, value, ppo_cfg), None
+    new = copy.deepcopy(ref)
+    start = [p.detach().clone() for p in [*ref.policy.parameters(), *ref.value.parameters()]]
+    for i in range(updates):
+        m_ref = reference_update(ref, batch, torch.Generator().manual_seed(10 + i))
+        m_new = new.update(batch, torch.Generator().manual_seed(10 + i))
+    return ref, new, m_ref, m_new, start
+
+
+_SAME_MATHS_CASES = {
+    "lower_biped": (PPOConfig(epochs=10, minibatch=128, lr=1e-4, kl_stop=0.1), PolicyConfig(hidden=(128, 128, 128)), 164, 17, 32, 128),
+    "executor": (PPOConfig(epochs=5, minibatch=512, lr=2e-4, kl_coef=0.2, kl_stop=0.1),
+                 PolicyConfig(hidden=(64, 64, 64), init_log_std=-1.0, learn_log_std=False), 60, 28, 32, 64),
+    "kl_stop_fires": (PPOConfig(epochs=6, minibatch=32, lr=3e-2, kl_stop=0.02), PolicyConfig(hidden=(32, 32)), 9, 3, 16, 16),
+    "entropy_anchor_adaptive": (PPOConfig(epochs=3, minibatch=48, lr=1e-3, entropy_coef=0.01, kl_coef=0.1, proximal_anchor=True,
+                                          lr_schedule="adaptive", normalize_advantages=False, vf_coef=1.0),
+                                PolicyConfig(hidden=(32, 32), activation="tanh"), 9, 3, 16, 16),
+}
+
+
+@pytest.fixture
+def one_thread():
+    """The learner's setting next to local actors; with more threads than free cores the
+    OpenMP barriers of 3 x 128 matmuls spin for most of the test's time."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.mark.parametrize("case", list(_SAME_MATHS_CASES))
+def test_update_takes_the_reference_loops_steps(case, one_thread):
+    """`PPO.update` computes its minibatch steps with fewer operations than the textbook loop
+    (`learner.ppo_reference`); after two updates on the same data from the same state, the
+    parameters, Adam's moments, the normalizer and the metrics agree to float rounding (today
+    bit for bit; 1e-5 leaves room for a kernel that rounds differently, not for other maths:
+    a changed loss, order or step moves them by 1e-3 or more, see `moved`)."""
+    ppo_cfg, policy_cfg, obs_dim, act_dim, T, B = _SAME_MATHS_CASES[case]
+    ref, new, m_ref, m_new, start = _twin_updates(ppo_cfg, policy_cfg, obs_dim, act_dim, T, B, updates=2)
+    params_ref = [*ref.policy.parameters(), *ref.value.parameters()]
+    params_new = [*new.policy.parameters(), *new.value.parameters()]
+    moved = max(float((p.detach() - s).abs().max()) for p, s in zip(params_ref, start))
+    assert moved > 1e-3  # the updates did something to compare
+    for a, b in zip(params_ref, params_new):
+        torch.testing.assert_close(b, a, rtol=0, atol=1e-5)
+    for a, b in zip(ref.policy.buffers(), new.policy.buffers()):
+        torch.testing.assert_close(b, a, rtol=0, atol=0)
+    for p_ref, p_new in zip(params_ref, params_new):
+        s_ref, s_new = ref.optimizer.state.get(p_ref, {}), new.optimizer.state.get(p_new, {})
+        assert s_ref.keys() == s_new.keys()
+        for k in s_ref:
+            torch.testing.assert_close(s_new[k], s_ref[k], rtol=1e-5, atol=1e-8)
+    assert m_new.keys() == m_ref.keys()
+    for k in m_ref:
+        assert m_new[k] == pytest.approx(m_ref[k], rel=1e-4, abs=1e-6, nan_ok=True), k
+    assert new.lr == ref.lr
+    if case == "kl_stop_fires":
+        assert 0 < m_new["policy_steps"] < m_new["minibatch_steps"]
+
+
+def test_update_skips_non_finite_minibatches_like_the_reference(one_thread):
+    cfg = PPOConfig(epochs=2, minibatch=32)
+    ref, new, m_ref, m_new, _ = _twin_updates(cfg, PolicyConfig(hidden=(16, 16)), 5, 2, 16, 8)
+    from learner.ppo_reference import reference_update
+
+    T, B = 16, 8
+    bad = Batch(torch.randn(T, B, 5), torch.randn(T, B, 5), torch.zeros(T, B, 2), torch.zeros(T, B),
+                torch.full((T, B), float("nan")), torch.zeros(T, B, dtype=torch.bool), torch.zeros(T, B, dtype=torch.bool))
+    before = [p.detach().clone() for p in new.policy.parameters()]
+    m_ref, m_new = reference_update(ref, bad), new.update(bad)
+    assert new.skipped_updates == ref.skipped_updates == 8
+    assert m_new.keys() == m_ref.keys() and m_new["minibatch_steps"] == 0
+    assert all(torch.equal(a, b) for a, b in zip(before, new.policy.parameters()))

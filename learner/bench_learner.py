@@ -1,0 +1,115 @@
+"""`morphmimic bench learner`: the PPO update's cost per minibatch step, old path against new.
+
+For each preset: its policy and value networks (hidden sizes, observation and action sizes of
+its task), its PPO settings (epochs, minibatch, transitions per update) and one batch of random
+transitions with actions drawn from the policy. Two identical copies start each round from the
+same state; `learner.ppo_reference.reference_update` (the textbook loop the update was first
+written as) and `PPO.update` run on the same batch with the same minibatch order, interleaved
+(old, new, old, new, ...), so background load hits both alike. Reported: milliseconds per
+minibatch step of each (median over rounds, and the fastest round, the least disturbed by other
+load), their ratio per round (median, min-max) and of the fastest rounds, and the largest
+parameter difference after one update (0 today: the same maths in the same order).
+
+Torch runs single-threaded by default, as the learner does when the actors take the other cores.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import statistics
+import time
+
+import torch
+
+from common.policy import GaussianPolicy, ValueNet
+from common.tasks.registry import make_env
+from learner.ppo import PPO, Batch
+from learner.ppo_reference import reference_update
+from learner.presets import PRESETS
+
+
+def random_batch(policy: GaussianPolicy, steps: int, unroll: int, seed: int) -> Batch:
+    """`steps` transitions as `[unroll, steps / unroll]`; observations with a spread of scales
+    (as the normalizer meets them), actions and log-probabilities from the policy itself."""
+    g = torch.Generator().manual_seed(seed)
+    T, B = unroll, steps // unroll
+    scale = torch.rand(policy.obs_dim, generator=g) * 5
+    offset = torch.randn(policy.obs_dim, generator=g)
+    obs = offset + scale * torch.randn(T, B, policy.obs_dim, generator=g)
+    next_obs = offset + scale * torch.randn(T, B, policy.obs_dim, generator=g)
+    with torch.no_grad():
+        policy.normalizer.update(obs.reshape(-1, policy.obs_dim))
+        dist = policy.distribution(obs)
+        actions = dist.mean + dist.stddev * torch.randn(dist.mean.shape, generator=g)
+        logp = dist.log_prob(actions).sum(-1)
+    policy.normalizer.count.zero_()
+    policy.normalizer.mean.zero_()
+    policy.normalizer.var.fill_(1.0)
+    terminated = torch.rand(T, B, generator=g) < 0.03
+    truncated = (torch.rand(T, B, generator=g) < 0.01) & ~terminated
+    return Batch(obs, next_obs, actions, logp, torch.rand(T, B, generator=g) * 2, terminated, truncated)
+
+
+@torch.no_grad()
+def _max_param_diff(a: PPO, b: PPO) -> float:
+    pa = [*a.policy.parameters(), *a.value.parameters()]
+    pb = [*b.policy.parameters(), *b.value.parameters()]
+    return max(float((x - y).abs().max()) for x, y in zip(pa, pb))
+
+
+def measure(preset: str, rounds: int, seed: int = 0) -> dict[str, object]:
+    cfg = PRESETS[preset][1]
+    env = make_env(cfg.task, seed=0)
+    obs_dim, act_dim = env.obs_dim, env.act_dim
+    del env
+    torch.manual_seed(seed)
+    policy, value = GaussianPolicy(obs_dim, act_dim, cfg.policy), ValueNet(obs_dim, cfg.policy)
+    batch = random_batch(policy, cfg.steps_per_iteration, cfg.actors.unroll_length, seed)
+    start = PPO(policy, value, cfg.ppo)
+    runners = {"old": lambda p, g: reference_update(p, batch, g), "new": lambda p, g: p.update(batch, g)}
+    per_step: dict[str, list[float]] = {"old": [], "new": []}
+    ratios: list[float] = []
+    diff = float("nan")
+    for r in range(rounds + 1):  # round 0 warms both paths up and is not timed
+        ran = {}
+        for name in (("old", "new") if r % 2 else ("new", "old")):
+            ppo = copy.deepcopy(start)
+            gen = torch.Generator().manual_seed(seed + r)
+            t0 = time.perf_counter()
+            metrics = runners[name](ppo, gen)
+            dt = time.perf_counter() - t0
+            ran[name] = (ppo, dt / max(metrics["minibatch_steps"], 1.0))
+        if r == 0:
+            diff = _max_param_diff(ran["old"][0], ran["new"][0])
+            continue
+        for name in ran:
+            per_step[name].append(ran[name][1])
+        ratios.append(ran["old"][1] / ran["new"][1])
+    return {
+        "preset": preset, "obs_dim": obs_dim, "act_dim": act_dim, "hidden": cfg.policy.hidden,
+        "epochs": cfg.ppo.epochs, "minibatch": cfg.ppo.minibatch, "steps": cfg.steps_per_iteration,
+        "old_ms": 1e3 * statistics.median(per_step["old"]), "new_ms": 1e3 * statistics.median(per_step["new"]),
+        "old_best_ms": 1e3 * min(per_step["old"]), "new_best_ms": 1e3 * min(per_step["new"]),
+        "ratio": statistics.median(ratios), "ratio_min": min(ratios), "ratio_max": max(ratios), "max_param_diff": diff,
+    }
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="morphmimic bench learner", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--presets", default="lower_biped,executor", help="comma-separated training presets")
+    parser.add_argument("--rounds", type=int, default=10, help="timed rounds, each one old and one new update")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (the learner's, next to the actors)")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    for preset in args.presets.split(","):
+        m = measure(preset.strip(), args.rounds)
+        print(f"{m['preset']}: obs {m['obs_dim']}, act {m['act_dim']}, hidden {m['hidden']}, "
+              f"{m['epochs']} epochs x {m['minibatch']} of {m['steps']} per update, {args.threads} thread(s), {args.rounds} rounds")
+        print(f"  old update (reference loop)   {m['old_ms']:7.2f} ms per minibatch step (fastest round {m['old_best_ms']:.2f})")
+        print(f"  new update (PPO.update)       {m['new_ms']:7.2f} ms per minibatch step (fastest round {m['new_best_ms']:.2f})")
+        print(f"  speed-up old / new            {m['ratio']:7.2f}  median of rounds ({m['ratio_min']:.2f}-{m['ratio_max']:.2f}); "
+              f"fastest rounds {m['old_best_ms'] / m['new_best_ms']:.2f}")
+        print(f"  largest parameter difference after one update  {m['max_param_diff']:.1e}")
+    return 0
