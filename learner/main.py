@@ -36,10 +36,17 @@ def parse(argv: list[str]) -> RunConfig:
         + "\n".join(f"  {name:<{max(map(len, PRESETS))}}  {text}" for name, (text, _) in PRESETS.items())
     )
     try:
-        return tyro.cli(RunConfig, default=PRESETS[known.preset][1], args=rest, description=description,
-                        prog="python -m learner.main [--preset NAME]")
-    except ValueError as exc:  # __post_init__ validation
-        raise SystemExit(f"invalid configuration: {exc}") from None
+        cfg = tyro.cli(RunConfig, default=PRESETS[known.preset][1], args=rest, description=description,
+                       prog="python -m learner.main [--preset NAME]")
+        # The task's own checks (its parameter space, its clips) before any run folder exists.
+        from common.tasks.registry import task_clips, task_space
+
+        task_space(cfg.task)
+        task_clips(cfg.task)
+        return cfg
+    except ValueError as exc:  # __post_init__ validation and the task's checks
+        print(f"python -m learner.main: invalid configuration: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -168,6 +168,16 @@ def test_bad_config_gets_a_clear_error(tmp_path):
     assert proc.returncode != 0 and "cannot be read" in out and "Traceback" not in out
 
 
+def test_bad_executor_options_exit_2_naming_the_value_and_make_no_run_folder(tmp_path):
+    for args, says in [(("--task.executor.clips", "nope"), "clips ['nope'] do not play on the humanoid"),
+                       (("--task.vary-shape",), "trains on the base humanoid"),
+                       (("--task.executor.catch-up-steps", "-1"), "catch-up-steps = -1 must be")]:
+        proc = _cli("--preset", "executor-tiny", "--mode", "serial", "--runs-dir", str(tmp_path), *args)
+        out, _ = proc.communicate(timeout=120)
+        assert proc.returncode == 2 and says in out and "Traceback" not in out, out
+    assert not any(tmp_path.iterdir())
+
+
 def test_bad_ppo_and_variance_options_name_the_value():
     from common.policy import PolicyConfig
     from learner.ppo import PPOConfig
