@@ -46,7 +46,6 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import argparse
 import dataclasses
 import math
-import multiprocessing
 import sys
 import time
 from dataclasses import dataclass
@@ -159,26 +158,21 @@ def executor_rows(loaded: eval_core.Loaded, clips: list[xe.EvalClip], starts: in
                 "episodes": [{k: r[k] for k in ("clip_id", "start_s", "return", "planned_steps", "success")}
                              for r in records]}
 
-    base = measure("unperturbed", xe.Perturbation())
-    log(_line(base, base))
     problem = projectile_problem(loaded, clips[0]) if any(r.group == "projectile" for r in rows) else None
-    out = []
-    for row in rows:
-        res = {"group": row.group, "x": row.x, "paper": row.paper}
-        flight = projectile_flight_steps(row, hz) if row.group == "projectile" else 0
-        if row.group == "projectile" and problem:
-            res.update(row=row.name, skipped=problem)
-        elif row.group == "projectile" and row.perturbation.projectile_every * PROJECTILES < flight:
-            res.update(row=row.name, skipped=(
-                f"{PROJECTILES} projectile balls: thrown every {row.perturbation.projectile_every} steps, each is thrown "
-                f"again before it arrives ({flight} steps of flight: {row.perturbation.projectile_distance_m:g} m at "
-                f"{row.perturbation.projectile_speed_mps:g} m/s), so nothing would hit"))
-        else:
-            res.update(measure(row.name, row.perturbation))
-        _finish(res, base)
-        out.append(res)
-        log(_line(res, base))
-    return _finish(base, base), out
+
+    def skip(row: Row) -> str | None:
+        if row.group != "projectile":
+            return None
+        if problem:
+            return problem
+        flight = projectile_flight_steps(row, hz)
+        if row.perturbation.projectile_every * PROJECTILES < flight:
+            return (f"{PROJECTILES} projectile balls: thrown every {row.perturbation.projectile_every} steps, each is thrown "
+                    f"again before it arrives ({flight} steps of flight: {row.perturbation.projectile_distance_m:g} m at "
+                    f"{row.perturbation.projectile_speed_mps:g} m/s), so nothing would hit")
+        return None
+
+    return _run_rows(rows, measure, skip, log)
 
 
 # ---- shape controllers (Won & Lee walkers and swimmers) ----
@@ -260,28 +254,34 @@ def shape_rows(loaded: eval_core.Loaded, shapes: int, episode_s: float, seed: in
     def measure(name: str, pert: xe.Perturbation) -> dict[str, Any]:
         t0 = time.monotonic()
         init = (str(loaded.path), episode_s, pert)
-        if workers <= 1:
-            _init_shape(*init)
-            res = [_shape_work(j) for j in jobs]
-        else:
-            with multiprocessing.get_context("fork").Pool(min(workers, len(jobs)), _init_shape, init) as pool:
-                res = pool.map(_shape_work, jobs)
+        res = eval_core.run_jobs(_init_shape, init, _shape_work, jobs, workers)
         perf = float(np.mean([r["return"] / planned for r in res]))
         return {"row": name, "performance": perf, "success_pct": 100.0 * float(np.mean([not r["fell"] for r in res])),
                 "mean_return": float(np.mean([r["return"] for r in res])), "seconds": time.monotonic() - t0,
                 "episodes": [{"index": r["index"], "return": r["return"], "success": not r["fell"]} for r in res]}
 
+    def skip(row: Row) -> str | None:
+        if row.group == "projectile":
+            return f"task {loaded.cfg.task.name!r} has no projectile body (the executor's robustness hook)"
+        if row.group == "speed" and "speed" not in loaded.cfg.task.task_params:
+            return ("trained without the 'speed' task parameter: a shape task plays its reference at another "
+                    "speed only through that parameter, which is part of the observation, so this policy cannot take it")
+        return None
+
+    return _run_rows(rows, measure, skip, log)
+
+
+def _run_rows(rows: list[Row], measure, skip, log) -> tuple[dict, list[dict]]:
+    """(the unperturbed row, one result per row): `measure(name, perturbation)` each row that
+    `skip(row)` gives no reason for, each made relative to the unperturbed one and logged."""
     base = measure("unperturbed", xe.Perturbation())
     log(_line(base, base))
     out = []
     for row in rows:
         res = {"group": row.group, "x": row.x, "paper": row.paper, "row": row.name}
-        if row.group == "projectile":
-            res["skipped"] = f"task {loaded.cfg.task.name!r} has no projectile body (the executor's robustness hook)"
-        elif row.group == "speed" and "speed" not in loaded.cfg.task.task_params:
-            res["skipped"] = ("trained without the 'speed' task parameter: a shape task plays its reference at another "
-                              "speed only through that parameter, which is part of the observation, so this policy "
-                              "cannot take it")
+        reason = skip(row)
+        if reason:
+            res["skipped"] = reason
         else:
             res.update(measure(row.name, row.perturbation))
         _finish(res, base)
