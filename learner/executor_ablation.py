@@ -57,12 +57,16 @@ def evaluate_arm(ckpt: str, out: Path, folder: str, p: argparse.ArgumentParser, 
 
 
 def _pct(summary: dict, split: str) -> str:
+    """'success % / pose success %' of one split."""
     s = summary["splits"].get(split)
-    return "-" if s is None else f"{s['success_pct']:.1f}"
+    if s is None:
+        return "-"
+    pose = s.get("pose_success_pct")
+    return f"{s['success_pct']:.1f} / {'-' if pose is None else f'{pose:.1f}'}"
 
 
 def table(rows: list[dict]) -> str:
-    lines = ["| arm | settings | env steps | train success % | test success % | PHC success % | MPJPE mm | reward/step |",
+    lines = ["| arm | settings | env steps | train success / pose % | test success / pose % | PHC success % | MPJPE mm | reward/step |",
              "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         s, m = r["summary"], r["meta"]
@@ -99,7 +103,7 @@ def main(argv: list[str]) -> int:
         f"{first['clips']} clips x {args.starts} start frames each (evenly over each clip's first {100 * xe.START_SPAN:.0f}%), "
         "on the tracked frame, mean action, truncated at the clip's end; the same episodes for every arm. Train/test: "
         "the clips the arm trained on / UniCon's held-out split of its config. Success: tracked to the clip's end with no "
-        "reward term below alpha (the per-term rule for every arm); PHC success: the mean body-position error never above "
+        "reward term below alpha (the per-term rule for every arm); pose: the same on the four pose terms; PHC success: the mean body-position error never above "
         f"{xe.PHC_THRESHOLD_M:g} m (all clips); MPJPE (root-relative, mm) and reward/step: over the episode as the arm's "
         "own termination rule runs it (all clips).", "",
         table(rows), "",

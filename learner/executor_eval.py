@@ -15,6 +15,8 @@ first step at which each criterion fails, and every metric is read off that one 
 
 - success (UniCon): tracked to the clip's end with no reward term below alpha (the per-term
   rule, for every checkpoint alike, whatever rule it trained with) and no simulator divergence;
+- pose success: the same with only the four pose terms watched (joint velocity left out, as
+  the executor presets train: `ExecutorConfig.terminate_on`);
 - PHC success (Luo et al. 2023): the mean global body-position error (`body_error_m`) never
   above 0.5 m before the clip's end; measured on the trajectory not cut by UniCon's rule, as
   PHC's evaluation terminates on its own criterion only;
@@ -233,14 +235,17 @@ def clip_durations(env, clips: Iterable[EvalClip]) -> dict[str, float]:
     return out
 
 
-def first_failures(terms: dict[str, float], weights, alpha: float, own_rule: str) -> tuple[str | None, str | None]:
-    """(the per-term rule's verdict, the checkpoint's own rule's verdict) at one step: the name
-    of what ended it (`executor_rewards.termination`), or None."""
+def first_failures(terms: dict[str, float], weights, alpha: float, own_rule: str,
+                   own_watch: tuple[str, ...] | None = None) -> tuple[str | None, str | None, str | None]:
+    """(the per-term rule's verdict over all five terms, over the four pose terms, the
+    checkpoint's own rule's verdict) at one step: the name of what ended it
+    (`executor_rewards.termination`), or None."""
     from common.tasks import executor_rewards as rw
 
     per_term = rw.termination(terms, weights, "per_term", alpha)
-    own = per_term if own_rule == "per_term" else rw.termination(terms, weights, own_rule, alpha)
-    return per_term, own
+    pose = rw.termination(terms, weights, "per_term", alpha, rw.POSE_TERMS)
+    own = rw.termination(terms, weights, own_rule, alpha, own_watch or rw.TERMS)
+    return per_term, pose, own
 
 
 def run_episode(env, policy, clip_id: str, start_s: float, own_rule: str, seed: int,
@@ -255,7 +260,7 @@ def run_episode(env, policy, clip_id: str, start_s: float, own_rule: str, seed: 
     rewards: list[float] = []
     joint_err: list[float] = []
     body_err: list[float] = []
-    fail = {"per_term": None, "own": None, "phc": None}
+    fail = {"per_term": None, "pose": None, "own": None, "phc": None}
     failed_term = None
     diverged = False
     k = 0
@@ -277,9 +282,11 @@ def run_episode(env, policy, clip_id: str, start_s: float, own_rule: str, seed: 
         rewards.append(float(r))
         joint_err.append(float(info["joint_error_m"]))
         body_err.append(float(info["body_error_m"]))
-        per_term, own = first_failures(info["terms"], ex.reward_weights, ex.alpha, own_rule)
+        per_term, pose, own = first_failures(info["terms"], ex.reward_weights, ex.alpha, own_rule, ex.terminate_on)
         if per_term and fail["per_term"] is None:
             fail["per_term"], failed_term = k, per_term
+        if pose and fail["pose"] is None:
+            fail["pose"] = k
         if own and fail["own"] is None:
             fail["own"] = k
         if info["body_error_m"] > PHC_THRESHOLD_M and fail["phc"] is None:
@@ -290,7 +297,7 @@ def run_episode(env, policy, clip_id: str, start_s: float, own_rule: str, seed: 
     ret = float(sum(rewards[:own_end]))
     return {
         "clip_id": clip_id, "start_s": float(start_s), "planned_steps": planned, "steps": k,
-        "success": fail["per_term"] is None, "phc_success": fail["phc"] is None,
+        "success": fail["per_term"] is None, "pose_success": fail["pose"] is None, "phc_success": fail["phc"] is None,
         "fail_step": fail["per_term"], "failed_term": failed_term, "phc_fail_step": fail["phc"],
         "own_end_step": fail["own"] or k, "diverged": diverged,
         "tracked_frac": (fail["per_term"] - 1) / max(planned, 1) if fail["per_term"] else 1.0,
@@ -365,6 +372,7 @@ def stats(records: list[dict]) -> dict[str, Any]:
         "episodes": len(records),
         "clips": len({r["clip_id"] for r in records}),
         "success_pct": 100.0 * len(ok) / len(records) if records else None,
+        "pose_success_pct": 100.0 * sum(r.get("pose_success", False) for r in records) / len(records) if records else None,
         "phc_success_pct": 100.0 * sum(r["phc_success"] for r in records) / len(records) if records else None,
         "mpjpe_mm": _mean([r["mpjpe_mm"] for r in records]),
         "mpjpe_mm_success": _mean([r["mpjpe_mm"] for r in ok]),

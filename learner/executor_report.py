@@ -70,8 +70,11 @@ def describe(cfg) -> str:
         clips = f"{len(ex.clips)} listed clips"
     else:
         clips = f"{ex.split} split (seed {ex.split_seed})"
-    return (f"{ex.actuation}, {'per-term' if ex.termination == 'per_term' else ex.termination} termination "
-            f"(alpha {ex.alpha:g}), {ex.clip_draws} clip draws, {'reactive init' if ex.reactive_init else 'no reactive init'}, "
+    from common.tasks.executor_rewards import POSE_TERMS, TERMS
+
+    watch = {TERMS: "", POSE_TERMS: " on the pose terms"}.get(tuple(ex.terminate_on), f" on {', '.join(ex.terminate_on)}")
+    return (f"{ex.actuation}, {'per-term' if ex.termination == 'per_term' else ex.termination} termination"
+            f"{watch if ex.termination == 'per_term' else ''} (alpha {ex.alpha:g}), {ex.clip_draws} clip draws, {'reactive init' if ex.reactive_init else 'no reactive init'}, "
             f"tau {ex.tau}, {clips}")
 
 
@@ -80,18 +83,18 @@ def _f(x: Any, fmt: str = ".1f") -> str:
 
 
 def stats_row(name: str, s: dict[str, Any]) -> str:
-    return (f"| {name} | {s['clips']} | {s['episodes']} | {_f(s['success_pct'])} | {_f(s['phc_success_pct'])} "
-            f"| {_f(s['mpjpe_mm'])} | {_f(s['mpjpe_mm_success'])} | {_f(s['reward_per_step'], '.3f')} "
+    return (f"| {name} | {s['clips']} | {s['episodes']} | {_f(s['success_pct'])} | {_f(s.get('pose_success_pct'))} "
+            f"| {_f(s['phc_success_pct'])} | {_f(s['mpjpe_mm'])} | {_f(s['mpjpe_mm_success'])} | {_f(s['reward_per_step'], '.3f')} "
             f"| {_f(s['tracked_pct'])} |")
 
 
-STATS_HEAD = ("| clips | episodes | success % | PHC success % | MPJPE mm | MPJPE mm (successful) | reward/step "
+STATS_HEAD = ("| clips | episodes | success % | pose success % | PHC success % | MPJPE mm | MPJPE mm (successful) | reward/step "
               "| tracked % |")
 
 
 def markdown(loaded: eval_core.Loaded, summary: dict, meta: dict, files: list[str]) -> str:
     head = "| group " + STATS_HEAD
-    rule = "|---" * 9 + "|"
+    rule = "|---" * 10 + "|"
     lines = [
         f"# Executor evaluation of `{loaded.name}`", "",
         f"Checkpoint `{loaded.path}` (iteration {meta['iteration']}, {meta['env_steps']:,d} env steps); trained with "
@@ -102,6 +105,8 @@ def markdown(loaded: eval_core.Loaded, summary: dict, meta: dict, files: list[st
         "off that trajectory (termination only cuts an episode, it does not change it):", "",
         f"- **success**: tracked to the clip's end with no reward term below alpha = {loaded.cfg.task.executor.alpha:g} "
         "(UniCon's per-term rule, for every checkpoint alike) and no simulator divergence;",
+        "- **pose success**: the same with the four pose terms only (joint velocity not watched, as the executor "
+        "presets train);",
         f"- **PHC success**: the mean global body-position error never above {xe.PHC_THRESHOLD_M:g} m before the clip's end "
         "(Luo et al. 2023's criterion, not cut by UniCon's rule);",
         f"- **MPJPE** (mean root-relative body-position error, mm), **reward/step**: over the episode as the checkpoint's own "
@@ -115,13 +120,15 @@ def markdown(loaded: eval_core.Loaded, summary: dict, meta: dict, files: list[st
         "## By class", "", "| class " + STATS_HEAD, rule,
         *(stats_row(f"`{k}`", s) for k, s in summary["classes"].items()), "",
         "## By clip", "",
-        "| clip | split | class | success % | PHC success % | MPJPE mm | reward/step | tracked % | ended most by |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| clip | split | class | success % | pose success % | PHC success % | MPJPE mm | reward/step | tracked % "
+        "| ended most by |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for cid, s in summary["clips"].items():
         ended = next(iter(s["failed_terms"]), "-")
-        lines.append(f"| `{cid}` | {s['split']} | `{s['label']}` | {_f(s['success_pct'])} | {_f(s['phc_success_pct'])} "
-                     f"| {_f(s['mpjpe_mm'])} | {_f(s['reward_per_step'], '.3f')} | {_f(s['tracked_pct'])} | {ended} |")
+        lines.append(f"| `{cid}` | {s['split']} | `{s['label']}` | {_f(s['success_pct'])} "
+                     f"| {_f(s.get('pose_success_pct'))} | {_f(s['phc_success_pct'])} | {_f(s['mpjpe_mm'])} "
+                     f"| {_f(s['reward_per_step'], '.3f')} | {_f(s['tracked_pct'])} | {ended} |")
     lines += ["", "Files: " + ", ".join(f"`{Path(f).name}`" for f in files), ""]
     return "\n".join(lines)
 
@@ -225,7 +232,8 @@ def evaluate_checkpoint(loaded: eval_core.Loaded, clips: list[xe.EvalClip], star
 
 
 def line(name: str, group: str, s: dict) -> str:
-    return (f"[evaluate] {name} {group}: success {_f(s['success_pct'])}% (PHC {_f(s['phc_success_pct'])}%), "
+    return (f"[evaluate] {name} {group}: success {_f(s['success_pct'])}% (pose {_f(s.get('pose_success_pct'))}%, "
+            f"PHC {_f(s['phc_success_pct'])}%), "
             f"MPJPE {_f(s['mpjpe_mm'])} mm, reward/step {_f(s['reward_per_step'], '.3f')}, "
             f"{s['clips']} clips x {s['episodes'] // max(s['clips'], 1)} starts")
 

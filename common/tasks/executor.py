@@ -320,7 +320,7 @@ class ExecutorEnv:
         terms = rw.reward_terms(errors, self.ex.reward_scales)
         self.last_terms = terms
         reward = rw.weighted_sum(terms, self.ex.reward_weights)
-        ended_by = rw.termination(terms, self.ex.reward_weights, self.ex.termination, self.ex.alpha)
+        ended_by = rw.termination(terms, self.ex.reward_weights, self.ex.termination, self.ex.alpha, self.ex.terminate_on)
         terminated = ended_by is not None and self.k > self.grace
         truncated = not terminated and (self.k >= self.cfg.episode_steps or self.scheduler.done)
         info = {"diverged": False, "terms": terms, "ended_by": ended_by if terminated else None,

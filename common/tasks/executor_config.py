@@ -6,6 +6,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
+from common.tasks.executor_rewards import TERMS
+
 
 @dataclass(frozen=True)
 class ExecutorConfig:
@@ -39,6 +41,9 @@ class ExecutorConfig:
     """per_term: end the episode as soon as any of the five reward terms falls below `alpha`
     (UniCon's constrained objective, eq. 6); sum: only when the weighted sum falls below `alpha`
     (the ablation); none: only the time limit and simulator divergence end it."""
+    terminate_on: tuple[str, ...] = TERMS
+    """per_term: the terms the rule watches (UniCon: all five; the executor presets leave out
+    joint_velocity, which stays in the reward: see `learner.presets._executor_preset`)."""
     alpha: float = 0.1
     """Tolerance of the termination rule (UniCon: 0.1 for every term)."""
     reward_weights: tuple[float, float, float, float, float] = (0.2, 0.2, 0.1, 0.4, 0.1)
@@ -93,5 +98,9 @@ class ExecutorConfig:
             raise ValueError(f"--task.executor.rsis-frames = {self.rsis_frames} must be 0 <= low <= high")
         if self.rsis_translation_m < 0 or self.rsis_velocity_std < 0:
             raise ValueError("--task.executor.rsis-translation-m and --task.executor.rsis-velocity-std must be >= 0")
+        bad = [t for t in self.terminate_on if t not in TERMS]
+        if bad or not self.terminate_on or len(set(self.terminate_on)) != len(self.terminate_on):
+            raise ValueError(f"--task.executor.terminate-on = {self.terminate_on}: give one or more distinct terms of "
+                             f"{', '.join(TERMS)}")
         if len(self.reward_weights) != 5 or len(self.reward_scales) != 5:
             raise ValueError("--task.executor.reward-weights and --task.executor.reward-scales take 5 values each")

@@ -27,6 +27,8 @@ from common.tasks.rewards import quat_angle
 
 TERMS = ("root_position", "root_rotation", "joint_position", "joint_rotation", "joint_velocity")
 """The five terms in the order of `ExecutorConfig.reward_weights` / `reward_scales`."""
+POSE_TERMS = TERMS[:4]
+"""The four pose terms: what the executor presets' per-term rule watches (`ExecutorConfig.terminate_on`)."""
 END_EFFECTORS_IN_DEEPMIMIC = 4
 
 
@@ -71,11 +73,13 @@ def weighted_sum(terms: dict[str, float], weights: tuple[float, ...]) -> float:
     return float(sum(w * terms[name] for name, w in zip(TERMS, weights)))
 
 
-def termination(terms: dict[str, float], weights: tuple[float, ...], rule: str, alpha: float) -> str | None:
-    """Why the episode ends now, or None: "per_term" ends it at the first term below alpha
-    (returns that term's name), "sum" when the weighted sum is below alpha ("sum"), "none" never."""
+def termination(terms: dict[str, float], weights: tuple[float, ...], rule: str, alpha: float,
+                watch: tuple[str, ...] = TERMS) -> str | None:
+    """Why the episode ends now, or None: "per_term" ends it at the first term of `watch` below
+    alpha (returns that term's name; UniCon watches all five), "sum" when the weighted sum is
+    below alpha ("sum"), "none" never."""
     if rule == "per_term":
-        for name in TERMS:
+        for name in watch:
             if terms[name] < alpha:
                 return name
         return None

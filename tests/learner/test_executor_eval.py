@@ -9,6 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from common.tasks import executor_rewards as rw
+
 from learner import eval_core, executor_eval as xe
 from tests.learner.executor_checkpoints import tiny_executor
 
@@ -80,7 +82,10 @@ def test_one_run_without_termination_matches_the_terminating_run(loaded) -> None
     policy = eval_core.make_policy(loaded, env.obs_dim, env.act_dim)
     rec = xe.run_episode(env, policy, "humanoid3d_kick", 0.3, "per_term", seed=0)
     assert rec["steps"] == rec["planned_steps"] > 10  # termination off: played to the clip's end
-    assert not rec["success"] and rec["fail_step"] == rec["own_end_step"]  # an untrained policy fails early
+    assert not rec["success"] and not rec["pose_success"]  # an untrained policy fails early
+    # the checkpoint's own rule watches the pose terms (the presets' terminate_on): never before the five-term rule
+    assert loaded.cfg.task.executor.terminate_on == rw.POSE_TERMS
+    assert rec["fail_step"] <= rec["own_end_step"]
 
     task = dataclasses.replace(loaded.cfg.task, episode_s=xe.EVAL_EPISODE_S, executor=dataclasses.replace(
         loaded.cfg.task.executor, clips=(), split="all", at_clip_end="stop", reactive_init=False, catch_up_steps=0))
@@ -93,7 +98,7 @@ def test_one_run_without_termination_matches_the_terminating_run(loaded) -> None
         ret, k = ret + r, k + 1
         if term or trunc:
             break
-    assert term and k == rec["fail_step"] and info["ended_by"] == rec["failed_term"]
+    assert term and k == rec["own_end_step"] and info["ended_by"] in rw.POSE_TERMS
     assert ret == pytest.approx(rec["return"], rel=1e-9)
 
 

@@ -68,6 +68,9 @@ def test_termination_rules():
     assert rw.termination({t: 0.0 for t in rw.TERMS}, w, "none", 0.1) is None
     with pytest.raises(ValueError, match="termination rule 'x'"):
         rw.termination(good, w, "x", 0.1)
+    # the presets' rule watches the four pose terms: a joint-velocity drop ends nothing, a pose drop does
+    assert rw.termination(one_bad, w, "per_term", 0.1, rw.POSE_TERMS) is None
+    assert rw.termination(dict(one_bad, joint_rotation=0.05), w, "per_term", 0.1, rw.POSE_TERMS) == "joint_rotation"
 
 
 # ---- the observation ----
@@ -258,7 +261,8 @@ def test_dataset_scheduler_reschedules_at_the_clip_end(env):
 
 def test_config_rejects_bad_values():
     for bad in (dict(tau=0), dict(alpha=1.5), dict(effort_scale=0.0), dict(speed=0.0), dict(rsis_frames=(5, 2)),
-                dict(passive_damping=-1.0), dict(catch_up_steps=-1)):
+                dict(passive_damping=-1.0), dict(catch_up_steps=-1), dict(terminate_on=()),
+                dict(terminate_on=("joint_speed",)), dict(terminate_on=("root_position", "root_position"))):
         with pytest.raises(ValueError, match="--task.executor"):
             ExecutorConfig(**bad)
 
@@ -297,3 +301,22 @@ def test_termination_waits_for_the_catch_up_steps():
         if term:
             break
     assert term and k > 12
+
+
+def test_the_watched_terms_decide_what_ends_an_episode():
+    """The same zero-torque start under both watch sets: with all five terms the episode ends
+    on the first term below alpha; with the pose terms only it never ends on joint_velocity."""
+    ends = {}
+    for watch in (rw.TERMS, rw.POSE_TERMS):
+        env = make_env(cfg_with(reactive_init=False, catch_up_steps=0, terminate_on=watch), seed=0)
+        env.reset(0, env.space.default_array)
+        for k in range(1, 120):
+            _, _, term, trunc, info = env.step(np.zeros(env.act_dim))
+            if term or trunc:
+                break
+        assert term
+        ends[watch] = (k, info["ended_by"])
+        assert info["ended_by"] in watch
+        assert min(info["terms"][t] for t in watch) < 0.1
+    assert ends[rw.POSE_TERMS][1] != "joint_velocity"
+    assert ends[rw.POSE_TERMS][0] >= ends[rw.TERMS][0]
