@@ -14,6 +14,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "evaluate": ("learner.evaluate", "evaluate a checkpoint: random shapes (Won & Lee) or, for the executor, clips by split (UniCon)"),
     "ablation": ("learner.ablation", "compare checkpoints on the same shapes (or clips): the ablation table"),
     "robustness": ("learner.robustness", "zero-shot robustness: speed, projectiles, mass (UniCon Table 2)"),
+    "play": ("learner.play", "run a checkpoint live or render it to an MP4 (schedulers: dataset, stitch, keyboard, video)"),
     "character": ("common.characters.cli", "build a character from a preset and shape values; write MJCF and PNG"),
     "motion": ("common.motion.cli", "import, view and check motion clips"),
     "bench": ("common.bench", "benchmarks: throughput | characters | episodes | sampler | soak"),

@@ -54,6 +54,14 @@ def positive_float(text: str) -> float:
     return value
 
 
+def port(text: str) -> int:
+    """A TCP/UDP port: an integer in [0, 65535] (0: the system picks a free one)."""
+    value = _number(text, int, "an integer in [0, 65535]")
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r} must be an integer in [0, 65535]")
+    return value
+
+
 def finite_float(text: str) -> float:
     """Any finite number (the morph strength: negative mirrors the schedule, 0 keeps the base shape)."""
     return _number(text, float, "a finite number")

@@ -120,37 +120,48 @@ def ensure_offscreen() -> None:
     gl_context.GLContext = GLContext
 
 
-class Recorder:
-    """Collects frames of an episode every `every` control steps with a camera that follows
-    the root; the model may change under it (a morph), the renderer is rebuilt then."""
+class FollowRenderer:
+    """Offscreen frames of an environment with a camera that follows its root; the model may
+    change under it (a morph), the renderer is rebuilt then."""
 
-    def __init__(self, every: int, width: int = 320, height: int = 320):
-        self.every, self.width, self.height = every, width, height
-        self.frames: list[np.ndarray] = []
+    def __init__(self, width: int = 320, height: int = 320):
+        self.width, self.height = width, height
         self._renderer = None
         self._model = None
 
-    def __call__(self, env, k: int) -> None:
-        if k % self.every:
-            return
+    def render(self, env, root_body: int, swimmer: bool = False) -> np.ndarray:
+        """`[height, width, 3]` uint8 of `env.model` / `env.data` now."""
         if self._model is not env.model:
-            if self._renderer is not None:
-                self._renderer.close()
+            self.close()
             self._model = env.model
             ensure_offscreen()
             self._renderer = mujoco.Renderer(env.model, height=self.height, width=self.width)
         cam = mujoco.MjvCamera()
         cam.type = mujoco.mjtCamera.mjCAMERA_FREE
-        cam.lookat[:] = env.data.subtree_com[env.root_body]
-        cam.distance = 3.0 if not env.character.is_swimmer else 2.5
-        cam.azimuth, cam.elevation = 120.0, (-30.0 if env.character.is_swimmer else -12.0)
+        cam.lookat[:] = env.data.subtree_com[root_body]
+        cam.distance = 3.0 if not swimmer else 2.5
+        cam.azimuth, cam.elevation = 120.0, (-30.0 if swimmer else -12.0)
         self._renderer.update_scene(env.data, camera=cam)
-        self.frames.append(self._renderer.render().copy())
+        return self._renderer.render().copy()
 
     def close(self) -> None:
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+
+
+class Recorder(FollowRenderer):
+    """Collects frames of an episode every `every` control steps (`FollowRenderer`)."""
+
+    def __init__(self, every: int, width: int = 320, height: int = 320):
+        super().__init__(width, height)
+        self.every = every
+        self.frames: list[np.ndarray] = []
+
+    def __call__(self, env, k: int) -> None:
+        if k % self.every:
+            return
+        self.frames.append(self.render(env, env.root_body, env.character.is_swimmer))
 
     def write_strip(self, path: Path, n: int = 8) -> Path | None:
         """A PNG of `n` frames side by side, evenly spaced over the episode."""

@@ -160,17 +160,14 @@ class Character:
                 f"nv {self.model.nv}, nu {self.model.nu}, bodies {self.model.nbody - 1})")
 
 
-def extent(model: mujoco.MjModel, data: mujoco.MjData, axis: int) -> tuple[float, float]:
-    """(min, max) world coordinate along `axis` over the character's geoms (floor excluded)."""
-    lo, hi = np.inf, -np.inf
-    for g in range(model.ngeom):
-        if model.geom_bodyid[g] == 0:
-            continue
-        rot = data.geom_xmat[g].reshape(3, 3)
-        c = data.geom_xpos[g][axis] + rot[axis] @ model.geom_aabb[g, :3]
-        h = np.abs(rot[axis]) @ model.geom_aabb[g, 3:]
-        lo, hi = min(lo, c - h), max(hi, c + h)
-    return float(lo), float(hi)
+def extent(model: mujoco.MjModel, data: mujoco.MjData, axis: int, bodies: np.ndarray | None = None) -> tuple[float, float]:
+    """(min, max) world coordinate along `axis` over the geoms of `bodies` (default: every body
+    but the world, so the floor is excluded)."""
+    keep = model.geom_bodyid != 0 if bodies is None else np.isin(model.geom_bodyid, bodies)
+    rot = data.geom_xmat[keep].reshape(-1, 3, 3)[:, axis, :]
+    centre = data.geom_xpos[keep][:, axis] + np.einsum("gj,gj->g", rot, model.geom_aabb[keep, :3])
+    half = np.einsum("gj,gj->g", np.abs(rot), model.geom_aabb[keep, 3:])
+    return float(np.min(centre - half)), float(np.max(centre + half))
 
 
 def _slices(model, adr, width) -> dict[str, slice]:
