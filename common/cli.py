@@ -15,8 +15,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "ablation": ("learner.ablation", "compare checkpoints on the same shapes (or clips): the ablation table"),
     "robustness": ("learner.robustness", "zero-shot robustness: speed, projectiles, mass (UniCon Table 2)"),
     "play": ("learner.play", "run a checkpoint live or render it to an MP4 (schedulers: dataset, stitch, keyboard, video)"),
+    "studio": ("learner.studio", "a browser studio: a checkpoint live in 3-D with shape sliders, schedulers, projectiles, plots"),
     "character": ("common.characters.cli", "build a character from a preset and shape values; write MJCF and PNG"),
     "motion": ("common.motion.cli", "import, view and check motion clips"),
+    "send-poses": ("common.tasks.pose_sender", "send a clip's joint positions over UDP to the video scheduler (morphmimic play --scheduler video)"),
     "bench": ("common.bench", "benchmarks: throughput | characters | episodes | sampler | soak"),
 }
 

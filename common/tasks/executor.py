@@ -44,7 +44,7 @@ from common.tasks import executor_rewards as rw
 from common.tasks.base import TaskConfig, step_physics
 from common.tasks.executor_obs import BodyKin, observation, read_kinematics
 from common.tasks.observations import JointLayout
-from common.tasks.schedulers import DatasetScheduler, TargetFrame
+from common.tasks.schedulers import DatasetScheduler, Scheduler, TargetFrame
 from sampler.balancer import MotionBalancer
 
 CHARACTER = "humanoid"
@@ -239,7 +239,17 @@ class ExecutorEnv:
             raise ClipError(f"clip is for the {clip.character!r} character, not {CHARACTER!r}; import it onto the "
                             "humanoid first (morphmimic motion import ... --character humanoid)", path=clip_id)
         self._motions[clip_id] = CharacterMotion.from_clip(clip.with_(loop=False), self.ref_model)
-        self.scheduler.extra_ids.add(clip_id)
+        if hasattr(self.scheduler, "extra_ids"):
+            self.scheduler.extra_ids.add(clip_id)
+
+    def use_scheduler(self, scheduler: Scheduler) -> None:
+        """Drive the targets with another scheduler (UniCon's run-time schedulers: dataset,
+        stitch, keyboard, video; `scheduler_factory.make_scheduler` builds them for this env).
+        The next `reset` begins it; the old one is not closed (its owner closes it)."""
+        for name in ("begin", "frame", "advance", "status"):
+            if not callable(getattr(scheduler, name, None)):
+                raise TypeError(f"{type(scheduler).__name__} is not a Scheduler: it has no {name}()")
+        self.scheduler = scheduler
 
     # ---- state ----
 
@@ -295,7 +305,7 @@ class ExecutorEnv:
         self.k = 0
         self.grace = self.ex.catch_up_steps
         self.last_terms: dict[str, float] = {}
-        return self._observe(self._actual_kin()), {"clip_id": self.scheduler.clip_id, "rsis_offset": offset}
+        return self._observe(self._actual_kin()), {"clip_id": getattr(self.scheduler, "clip_id", ""), "rsis_offset": offset}
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
         a = np.nan_to_num(np.asarray(action, dtype=np.float64))

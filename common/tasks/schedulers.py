@@ -10,7 +10,14 @@ generator, poses from video) plugs in without touching the task or retraining th
 `DatasetScheduler` is the one training uses (UniCon 5.1): a clip (drawn by the motion balancer)
 from a random frame, rescheduled to another random clip and frame at the clip's end, or, for
 evaluation, stopping there. A rescheduled clip is placed where the character is: its root at the
-new frame is moved onto the character's horizontal position and heading.
+new frame is moved onto the character's horizontal position and heading. UniCon also reschedules
+"on deviation": with `max_deviation_m` set, a character whose root drifts farther than that
+(horizontally) from the target root gets its schedule re-placed under it.
+
+The other run-time schedulers live in their own modules: `scheduler_stitch.py` (a FIFO of clips
+with slerp transitions), `scheduler_keyboard.py` (a kinematic generator steered by keys),
+`scheduler_video.py` (3-D joint positions over UDP); `scheduler_factory.make_scheduler` builds
+any of them for an `ExecutorEnv` (`ExecutorEnv.use_scheduler` swaps it in).
 """
 
 from __future__ import annotations
@@ -38,6 +45,9 @@ class TargetFrame:
 
 
 class Scheduler(Protocol):
+    clip_id: str
+    """What is being tracked now, by name (a clip id; "video" for a live source)."""
+
     def begin(self, rng: np.random.Generator, clip_id: str | None = None, start_s: float | None = None,
               align_to: np.ndarray | None = None) -> None:
         """Start a schedule: a clip (drawn when None) from `start_s` (random when None), placed at
@@ -79,7 +89,17 @@ def place(qpos: np.ndarray, qvel: np.ndarray, yaw: float, shift: np.ndarray) -> 
 
 
 class DatasetScheduler:
-    """Random clip and frame from a clip set, rescheduled (or stopped) at the clip's end.
+    """Random clip and frame from a clip set, rescheduled (or stopped) at the clip's end
+    (UniCon 2020, METHOD.md B "Schedulers": the dataset scheduler).
+
+    Deviation (UniCon: "reschedule at the end or on deviation"; opt-in, off by default):
+    with `max_deviation_m` set, `advance` reschedules as soon as the character's root is
+    farther than that from the target root in the horizontal plane. `on_deviation` says how:
+    "realign" (default) keeps the clip and its time and re-places the rest of it under the
+    character (root onto its horizontal position and heading), "redraw" draws a new clip and
+    frame as at a clip's end. The check waits `deviation_grace_steps` after every (re)start,
+    so a character that starts off its target (reactive initialization) is not rescheduled at
+    once. Counted in `deviation_reschedules` (also in `reschedules`).
 
     The frames of the current schedule are sampled once on the control grid t0 + k dt speed
     (vectorized: per-step slerps in Python would cost more than the physics), from
@@ -89,11 +109,20 @@ class DatasetScheduler:
     """
 
     def __init__(self, model: mujoco.MjModel, motion: MotionFn, clip_ids: Sequence[str], probabilities: np.ndarray,
-                 dt_s: float, *, speed: float = 1.0, at_end: str = "reschedule", lookback: int = 12, lookahead: int = 2):
+                 dt_s: float, *, speed: float = 1.0, at_end: str = "reschedule", lookback: int = 12, lookahead: int = 2,
+                 max_deviation_m: float | None = None, on_deviation: str = "realign", deviation_grace_steps: int = 10):
         if not clip_ids:
             raise ValueError("DatasetScheduler needs at least one clip")
         if at_end not in ("reschedule", "stop"):
             raise ValueError(f"at_end {at_end!r} is not one of reschedule, stop")
+        if max_deviation_m is not None and not (math.isfinite(max_deviation_m) and max_deviation_m > 0):
+            raise ValueError(f"max_deviation_m {max_deviation_m!r} must be a positive distance in metres (or None: off)")
+        if on_deviation not in ("realign", "redraw"):
+            raise ValueError(f"on_deviation {on_deviation!r} is not one of realign, redraw")
+        self.max_deviation_m = None if max_deviation_m is None else float(max_deviation_m)
+        self.on_deviation = on_deviation
+        self.deviation_grace_steps = int(deviation_grace_steps)
+        self.deviation_reschedules = 0
         self.model, self.motion = model, motion
         self.clip_ids = tuple(clip_ids)
         self.probabilities = np.asarray(probabilities, dtype=np.float64)
@@ -148,12 +177,30 @@ class DatasetScheduler:
     def advance(self, rng: np.random.Generator, qpos: np.ndarray) -> bool:
         self.k += 1
         if self.k < self.last_k:
-            return False
+            return self._deviation_reschedule(rng, qpos)
         if self.at_end == "stop":
             self._done = True
             return False
         self.reschedules += 1
         self.begin(rng, None, None, align_to=qpos)
+        return True
+
+    def deviation_m(self, qpos: np.ndarray) -> float:
+        """Horizontal distance (m) between the character's root (`qpos`) and the target root now."""
+        return float(np.linalg.norm(np.asarray(qpos[0:2], dtype=np.float64) - self.frame(0).qpos[0:2]))
+
+    def _deviation_reschedule(self, rng: np.random.Generator, qpos: np.ndarray) -> bool:
+        if self.max_deviation_m is None or self.k < self.deviation_grace_steps:
+            return False
+        if not self.deviation_m(qpos) > self.max_deviation_m:
+            return False
+        self.reschedules += 1
+        self.deviation_reschedules += 1
+        if self.on_deviation == "redraw":
+            self.begin(rng, None, None, align_to=qpos)
+        else:
+            t = min(self.t0 + self.k * self.dt * self.speed, self._motion.duration_s)
+            self.begin(rng, self.clip_id, t, align_to=qpos)
         return True
 
     @property
