@@ -34,6 +34,13 @@ AGENTS = ("policy", "zero", "random")
 LOST_M = 0.5
 """The executor has lost its target when the mean body-position error exceeds this (PHC's
 success criterion, Luo et al. 2023); the session then resets (with `auto_reset`)."""
+BODY_PRESETS: tuple[tuple[str, dict[str, float]], ...] = (
+    ("tall", {"global_z": 1.4}), ("short", {"global_z": 0.6}), ("wide", {"global_x": 1.4, "global_y": 1.4}),
+    ("long legs", {"leg_length": 1.5}), ("short legs", {"leg_length": 0.6}), ("long arms", {"arm_length": 1.5}),
+    ("bigger", {"scale": 1.4}), ("smaller", {"scale": 0.6}),
+)
+"""Won & Lee 2019 Figure 1's bodies by parameter name (`learner.morph_demo.SCHEDULES`' keyframes);
+a parameterization offers those whose parameters it has."""
 PUSH_MOMENTUM_NS = 20.0
 """A shape controller's stand-in for a projectile: the executor's 2 kg ball at 10 m/s."""
 
@@ -103,6 +110,20 @@ class LiveSession:
         """Shape controllers morph; the executor is trained on the base humanoid only (its box is pinned)."""
         lo, hi = self.shape_box
         return self.kind == "shape" and bool(np.any(hi > lo))
+
+    def body_presets(self) -> dict[str, dict[str, float]]:
+        """Named bodies of this parameterization, as shape values (name -> value): "base" and,
+        where the parameterization has the parameters, Won & Lee's Figure 1 bodies (tall, short,
+        wide; long or short legs, long arms; bigger, smaller), clamped to the box."""
+        names, (lo, hi) = self.shape_names, self.shape_box
+        base = dict(zip(names, map(float, self.env.space.default_array[: self.n_shape])))
+        out = {"base": base}
+        if not self.shape_can_change:
+            return out
+        for label, values in BODY_PRESETS:
+            if all(k in names for k in values):
+                out[label] = {**base, **{k: float(np.clip(v, lo[names.index(k)], hi[names.index(k)])) for k, v in values.items()}}
+        return out
 
     def shape_vector(self, values: dict[str, float]) -> np.ndarray:
         """The current shape with `values` (name -> value) set; ValueError naming any unknown

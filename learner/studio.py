@@ -93,6 +93,8 @@ class StudioGui:
                                            hint="every body heavier or lighter (UniCon Table 2)")
         with tabs.add_tab("Body", icon=viser.Icon.MAN):
             self.body_note = gui.add_markdown("")
+            self.body_preset = gui.add_dropdown("Body preset", options=["base"],
+                                                hint="a named body (Won & Lee's Figure 1): morphs to it while moving")
             self.shape_text = gui.add_text("NAME=VALUE", initial_value="global_z=1.2",
                                            hint="type shape values (several: spaces between); out-of-range ones are refused")
             self.shape_apply = gui.add_button("Apply typed values")
@@ -173,6 +175,11 @@ class StudioGui:
                 core.set_mass(self.mass.value)
 
         self.shape_apply.on_click(lambda _: core.set_shape_text(self.shape_text.value))
+
+        @self.body_preset.on_update
+        def _(_) -> None:
+            if self._user():
+                self.choose_body(self.body_preset.value)
         self.keys.on_click(lambda event: core.steer(event.target.value))
         self.style_button.on_click(lambda _: core.steer(f"style:{self.style.value}"))
         self.queue_button.on_click(lambda _: core.queue_clip(self.queue_clip.value))
@@ -185,6 +192,14 @@ class StudioGui:
 
     def _set_pause_from_key(self) -> None:
         self.pause.value = not self.pause.value  # fires the checkbox's callback (a user action)
+
+    def choose_body(self, label: str) -> None:
+        """What picking a body preset does: morph to its shape values (the sliders follow)."""
+        presets = self.core.session.body_presets()
+        if label in presets:
+            for name in presets[label]:
+                self._touched.pop(name, None)
+            self.core.set_shape(presets[label])
 
     def move_slider(self, name: str, value: float) -> None:
         """What dragging shape slider `name` does (the callback's command path)."""
@@ -224,6 +239,7 @@ class StudioGui:
             "(Won & Lee 2019); its state is kept." if can else
             f"*{s.loaded.name} trains on one body: its shape cannot change (sliders disabled).*")
         self.shape_text.disabled = self.shape_apply.disabled = not can
+        self._set_quietly(self.body_preset, options=list(s.body_presets()), value="base", disabled=not can)
         with self.shape_folder:
             for i, name in enumerate(s.shape_names):
                 step = max(1e-3, round(float(hi[i] - lo[i]) / 100.0, 4)) if hi[i] > lo[i] else 0.01

@@ -106,6 +106,25 @@ def test_a_shape_slider_changes_the_measured_height(studio) -> None:
     assert core.session.params[i] == pytest.approx(hi[i]) and core.errors == errors
 
 
+def test_a_body_preset_morphs_to_its_shape(studio) -> None:
+    core, gui = studio.core, studio.gui
+    assert {"base", "tall", "short", "wide"} <= set(gui.body_preset.options)
+    i = core.session.shape_names.index("global_z")
+    errors = core.errors
+    core.set_paused(True)  # NOTE: one pose throughout, so only the morphs change the height
+    assert wait_for(lambda: core.paused, 5.0)
+    try:
+        gui.body_preset.value = "short"  # what picking it in the page does
+        assert wait_for(lambda: core.session.params[i] == pytest.approx(0.6), 5.0)
+        short = core.query(lambda s: s.body_height_m())
+        gui.body_preset.value = "base"
+        assert wait_for(lambda: core.session.params[i] == pytest.approx(1.0), 5.0)
+        assert np.allclose(core.session.params[: core.session.n_shape], 1.0)
+        assert core.query(lambda s: s.body_height_m()) > short + 0.1 and core.errors == errors
+    finally:
+        core.set_paused(False)
+
+
 def test_bad_input_shows_an_error_counts_it_and_the_loop_keeps_stepping(studio) -> None:
     core, gui = studio.core, studio.gui
     errors = core.errors
