@@ -127,7 +127,11 @@ def _executor_preset(variant: str = "") -> RunConfig:
     controller and a KL penalty.
 
     Deviations from UniCon, for this 2-core CPU: a 3 x 256 network instead of 3 x 1024 (the
-    learner's Adam step costs about 10x less per sample: DESIGN.md "Measured"), 8192 transitions
+    learner's Adam step costs about 10x less per sample: DESIGN.md "Measured"). At equal wall time
+    (`--preset executor-pd` from scratch, the two side by side for 20 min, 2026-12-02): 3 x 256
+    collected 475,136 steps with the learner at 11% of wall time, 3 x 1024 417,792 steps with it
+    at 77%, and their training returns were level (17.4 and 17.1 over the last 10 iterations):
+    the wider network buys nothing yet and leaves the actors no room; 8192 transitions
     per update from 32 environments instead of 4096 agents x 64 steps, 5 epochs of 512.
     Action noise starts at log std -2 (0.14 of each effort factor, 52 N m at the hips) and the
     variance controller takes it to -2.5 over 20 M steps: at -1 (0.37, 143 N m) the random

@@ -3,7 +3,7 @@ change it while it moves: the body (Won & Lee 2019's interactive character creat
 sliders that morph the walking character), the checkpoint, agent, clip and, for the executor,
 UniCon 2020's schedulers (keyboard steering, clip stitching), projectiles and mass.
 
-    morphmimic studio                                   # lower_biped on http://127.0.0.1:8080
+    morphmimic studio                                   # lower_biped-curriculum on http://127.0.0.1:8080
     morphmimic studio --checkpoint learner/pretrained/executor --port 8090
     morphmimic studio --host 0.0.0.0                    # share it on the network
     morphmimic studio --seconds 30                      # stops by itself (tests, demos)
