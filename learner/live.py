@@ -45,6 +45,18 @@ PUSH_MOMENTUM_NS = 20.0
 """A shape controller's stand-in for a projectile: the executor's 2 kg ball at 10 m/s."""
 
 
+def finite_number(value: Any, what: str, allowed: str) -> float:
+    """`value` as a finite float, else ValueError naming `what`, the value and what is `allowed`
+    (strings, None, lists and NaN alike: nothing from a user raises a TypeError past here)."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        v = math.nan
+    if isinstance(value, bool) or not math.isfinite(v):
+        raise ValueError(f"{what} = {value!r} is not a finite number; it must be {allowed}")
+    return v
+
+
 def live_task(loaded: eval_core.Loaded, clip: str | None = None, episode_s: float = 3600.0):
     """The checkpoint's task as a live session runs it: long episodes; for the executor, every
     humanoid clip trackable, rescheduled at a clip's end, projectiles in the scene, no reactive
@@ -131,12 +143,14 @@ class LiveSession:
         names = self.shape_names
         lo, hi = self.shape_box
         out = np.asarray(self.params[: self.n_shape], dtype=np.float64).copy()
+        if not isinstance(values, dict):
+            raise ValueError(f"shape values {values!r} must be a mapping of parameter name to number")
         for name, value in values.items():
             if name not in names:
                 raise ValueError(f"shape parameter {name!r} is not one of {', '.join(names)}")
             i = names.index(name)
-            v = float(value)
-            if not (math.isfinite(v) and lo[i] <= v <= hi[i]):
+            v = finite_number(value, f"shape parameter {name}", f"in [{lo[i]:g}, {hi[i]:g}]")
+            if not lo[i] <= v <= hi[i]:
                 raise ValueError(f"shape parameter {name} = {value!r} is outside [{lo[i]:g}, {hi[i]:g}]")
             out[i] = v
         return out
@@ -190,9 +204,7 @@ class LiveSession:
         self.steps += 1
         self.episode_steps += 1
         self.episode_return += float(r)
-        terms = dict(info.get("terms") or {})
-        if self.kind == "shape" and not info.get("diverged"):
-            terms = {k: float(v) for k, v in self.env.reward_terms().items()}
+        terms = {k: float(v) for k, v in (info.get("terms") or {}).items()}
         ended = None
         if info.get("diverged"):
             ended = "divergence"
@@ -238,7 +250,8 @@ class LiveSession:
     def throw_projectile(self, speed_mps: float = 10.0) -> None:
         """The executor: a 2 kg ball at `speed_mps`; a shape controller: a sideways push of the
         same momentum on its root."""
-        if not 0.0 < float(speed_mps) <= 100.0:
+        speed_mps = finite_number(speed_mps, "projectile speed (m/s)", "in (0, 100]")
+        if not 0.0 < speed_mps <= 100.0:
             raise ValueError(f"projectile speed {speed_mps} m/s must be in (0, 100]")
         if self.kind == "executor":
             self.env.throw_projectile(float(speed_mps), 2.0, self.rng)
@@ -250,8 +263,8 @@ class LiveSession:
 
     def scale_mass(self, factor: float) -> None:
         """Every body `factor` times heavier than the checkpoint's (0.25 .. 4)."""
-        factor = float(factor)
-        if not (math.isfinite(factor) and 0.25 <= factor <= 4.0):
+        factor = finite_number(factor, "mass factor", "in [0.25, 4]")
+        if not 0.25 <= factor <= 4.0:
             raise ValueError(f"mass factor {factor!r} must be in [0.25, 4]")
         self.mass_factor = factor
         self._apply_mass()

@@ -354,7 +354,8 @@ class ImitateEnv:
         fell = self.fell()
         obs = self._obs(body_frame)
         truncated = self.k >= self.cfg.episode_steps and not fell
-        info = {"diverged": False, "fell": fell, "task_reward": r_task, "imitation_reward": r_imit, "reg_reward": r_reg}
+        info = {"diverged": False, "fell": fell, "task_reward": r_task, "imitation_reward": r_imit, "reg_reward": r_reg,
+                "terms": terms}
         if fell and not self.character.is_swimmer:
             info["fall_bodies"] = self.fall_bodies()
         return obs, r_imit + r_task + r_reg, fell, truncated, info

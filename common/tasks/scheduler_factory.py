@@ -35,7 +35,10 @@ def make_scheduler(name: str, env: Any, **options: Any) -> Scheduler:
     if name == "stitch":
         from common.tasks.scheduler_stitch import StitchScheduler
 
-        clips = tuple(options.pop("clips", ()) or DEFAULT_STITCH)
+        clips = options.pop("clips", ()) or DEFAULT_STITCH
+        if isinstance(clips, str) or not isinstance(clips, (tuple, list)):
+            raise ValueError(f"stitch clips {clips!r} must be a list of clip ids (or (id, start_s, end_s) items)")
+        clips = tuple(clips)
         options.setdefault("speed", ex.speed)
         return StitchScheduler(env.ref_model, env._motion, env.dt, clips, known_ids=_known_clips(env), **frames, **options)
     if name == "keyboard":

@@ -122,14 +122,14 @@ class StitchScheduler:
         elif isinstance(clip, str):
             item = StitchItem(clip, start_s, end_s)
         else:
-            parts = tuple(clip)
+            parts = tuple(clip) if isinstance(clip, (tuple, list)) else ()
             if not 1 <= len(parts) <= 3 or not isinstance(parts[0], str):
                 raise ValueError(f"a stitch item is a clip id or (clip_id, start_s, end_s), not {clip!r}")
             item = StitchItem(*parts)
         self._check_known(item.clip_id)
         duration = self.motion(item.clip_id).duration_s
-        start = 0.0 if item.start_s is None else float(item.start_s)
-        end = duration if item.end_s is None else float(item.end_s)
+        start = 0.0 if item.start_s is None else _seconds(item.start_s)
+        end = duration if item.end_s is None else _seconds(item.end_s)
         if not (math.isfinite(start) and math.isfinite(end) and 0.0 <= start < end <= duration + 1e-9):
             raise ValueError(f"clip {item.clip_id!r}: start {item.start_s} s and end {item.end_s} s must satisfy "
                              f"0 <= start < end <= {duration:.3f} s (its duration)")
@@ -292,3 +292,11 @@ class StitchScheduler:
             first = self._dropped
             self._segments = [s for i, s in enumerate(self._segments)
                               if i + 1 >= len(self._segments) or self._segments[i + 1].start > first]
+
+
+def _seconds(value) -> float:
+    """A clip time as a float; NaN (refused by the range check after it) for anything that is not a number."""
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return math.nan

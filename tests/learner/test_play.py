@@ -70,8 +70,19 @@ def test_bad_values_are_refused_by_name() -> None:
         s.set_shape({"nope": 1.0})
     with pytest.raises(ValueError, match=r"global_z = 9.0 is outside \[0.5, 1.5\]"):
         s.set_shape({"global_z": 9.0})
-    with pytest.raises(ValueError, match="mass factor nan"):
+    with pytest.raises(ValueError, match="mass factor = nan is not a finite number"):
         s.scale_mass(float("nan"))
+    # the wrong type, not only the wrong value: a clear ValueError, never a TypeError
+    with pytest.raises(ValueError, match="shape parameter global_z = None is not a finite number"):
+        s.set_shape({"global_z": None})
+    with pytest.raises(ValueError, match=r"shape parameter global_z = 'tall' is not a finite number; it must be in \[0.5, 1.5\]"):
+        s.set_shape({"global_z": "tall"})
+    with pytest.raises(ValueError, match="must be a mapping"):
+        s.set_shape(["global_z", 1.0])
+    with pytest.raises(ValueError, match=r"mass factor = \[2\] is not a finite number"):
+        s.scale_mass([2])
+    with pytest.raises(ValueError, match="projectile speed"):
+        s.throw_projectile("fast")
     with pytest.raises(ValueError, match="clip 'nope' cannot play"):
         LiveSession(BIPED, clip="nope")
     with pytest.raises(ValueError, match="agent 'x'"):

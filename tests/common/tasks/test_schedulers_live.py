@@ -176,6 +176,14 @@ def test_stitch_queue_while_running_holds_when_dry_and_validates(env):
         make_scheduler("stitch", env).enqueue("no_such_clip")
     with pytest.raises(ValueError, match="start 2.0 s and end 1.0 s"):
         s.enqueue(WALK, 2.0, 1.0)
+    # the wrong type, not only the wrong value: a clear ValueError naming it
+    for bad in (123, None, {"clip": WALK}):
+        with pytest.raises(ValueError, match="a stitch item is a clip id or"):
+            s.enqueue(bad)
+    with pytest.raises(ValueError, match="start x s"):
+        s.enqueue((WALK, "x", None))
+    with pytest.raises(ValueError, match="stitch clips 5 must be a list"):
+        make_scheduler("stitch", env, clips=5)
     # loop=True plays the program again instead of holding
     looped = StitchScheduler(env.ref_model, env._motion, env.dt, [(WALK, 0.0, 0.3)], transition_s=0.1, loop=True)
     looped.begin(rng)
