@@ -23,11 +23,15 @@ from actors.rollout import RolloutWorker, configure_torch
 from actors.seq_ledger import SeqLedger
 from actors.weights_client import WeightsClient
 from common import sockets, wire
+from common.curve import RunKeys
 from common.policy import PolicyConfig
 from common.tasks.base import TaskConfig
 from common.tasks.registry import task_space
 
 log = logging.getLogger(__name__)
+
+FINAL_HEARTBEAT_S = 10.0
+"""How long a stopped actor keeps trying to queue its final heartbeat (the learner drains meanwhile)."""
 
 
 class RolloutActor:
@@ -40,9 +44,12 @@ class RolloutActor:
         endpoints: dict[str, str],
         seed: int = 0,
         sampler_handle=None,
+        keys: RunKeys | None = None,
     ):
         """`sampler_handle`: the sampler's Ray actor handle, if any; its endpoint is looked up
-        through it again on every reconnect, so a restarted sampler on a new port is found."""
+        through it again on every reconnect, so a restarted sampler on a new port is found.
+        `keys`: the run's CURVE keys as actors hold them (`RunKeys.for_actors`); every socket of
+        this actor authenticates with them."""
         configure_torch(cfg.torch_threads)
         self.actor_id, self.cfg = actor_id, cfg
         self._endpoints = dict(endpoints)
@@ -51,20 +58,22 @@ class RolloutActor:
         self.sampler = None
         fetch = None
         if endpoints.get("sampler"):
-            from sampler.client import SamplerClient  # the sampler package is optional for actors
+            # the sampler package is optional for actors
+            from sampler.client import SamplerClient
 
             lookup = endpoints["sampler"] if sampler_handle is None else _endpoint_lookup(sampler_handle)
-            self.sampler = SamplerClient(lookup, timeout_s=cfg.sampler_timeout_s, retries=cfg.sampler_retries)
+            self.sampler = SamplerClient(lookup, timeout_s=cfg.sampler_timeout_s, retries=cfg.sampler_retries, keys=keys)
             fetch = self._fetch_draws
         self.draws = DrawCache(fetch, task_space(task), cfg.draw_batch, seed=seed + 1)
         self.worker = RolloutWorker(actor_id, task, policy_cfg, cfg, self.draws, seed=seed)
         self.ledger = SeqLedger(cfg.seq_ledger_dir, actor_id)
         self.worker.seq = self.ledger.next_seq()
-        self.weights = WeightsClient(actor_id, self.endpoints, cfg.weights_timeout_s)
-        self.push = sockets.connect_unroll_push(endpoints["unrolls"])
+        self.weights = WeightsClient(actor_id, self.endpoints, cfg.weights_timeout_s, keys=keys)
+        self.push = sockets.connect_unroll_push(endpoints["unrolls"], keys)
         self.send_stalls = 0
         """Sends that timed out on a full queue and were retried (the unroll was kept)."""
         self.last_send = time.monotonic()
+        self._finished = False
 
     def endpoints(self) -> dict[str, str]:
         return self._endpoints
@@ -76,17 +85,36 @@ class RolloutActor:
         return reply.params, list(reply.clip_ids)
 
     def _send(self, msg) -> bool:
+        """Send, retrying while the learner applies backpressure; once stopping, one more try
+        (of up to the socket's send timeout) so an unroll collected as the stop came is not
+        dropped here. False: not sent (the final heartbeat tells the learner it is lost)."""
         frames = wire.encode(msg)
         if isinstance(msg, wire.UnrollMsg):
             self.ledger.record(msg.seq)
-        while not self._stop.is_set():
+        while True:
             try:
                 self.push.send_multipart(frames, copy=False)
                 self.last_send = time.monotonic()
                 return True
             except zmq.Again:
                 self.send_stalls += 1
-        return False
+            if self._stop.is_set():
+                return False
+
+    def finish(self) -> bool:
+        """Tell the learner this actor stopped: a final heartbeat with the last sequence number
+        it used, so the learner counts as lost any unroll up to it that never arrived. Does not
+        block; True once sent (then again a no-op)."""
+        if self._finished:
+            return True
+        msg = wire.HeartbeatMsg(actor_id=self.actor_id, seq=self.worker.seq - 1, env_steps=self.worker.env_steps,
+                                final=True)
+        try:
+            self.push.send_multipart(wire.encode(msg), zmq.NOBLOCK, copy=False)
+        except zmq.Again:
+            return False
+        self._finished = True
+        return True
 
     def run_once(self, weights_timeout_ms: int = 0) -> bool:
         """Take new weights if any, then collect and send one unroll. False while no weights yet."""
@@ -114,6 +142,10 @@ class RolloutActor:
                 time.sleep(0.05)
                 continue
             self.run_once(weights_timeout_ms=0 if self.worker.policy_version >= 0 else 200)
+        if self._stop.is_set():  # told to stop (not a time limit): say so while the learner drains
+            deadline = time.monotonic() + FINAL_HEARTBEAT_S
+            while not self.finish() and time.monotonic() < deadline:
+                time.sleep(0.01)
         return self.stats()
 
     def stop(self) -> None:

@@ -14,13 +14,16 @@ from typing import Callable
 import zmq
 
 from common import sockets, wire
+from common.curve import RunKeys
 
 log = logging.getLogger(__name__)
 
 
 class WeightsClient:
-    def __init__(self, actor_id: int, endpoints: Callable[[], dict[str, str]], timeout_s: float = 2.0):
+    def __init__(self, actor_id: int, endpoints: Callable[[], dict[str, str]], timeout_s: float = 2.0,
+                 keys: RunKeys | None = None):
         self.actor_id = actor_id
+        self.keys = keys
         self.endpoints = endpoints
         """Looked up again on every (re)connect: the learner may have moved or restarted."""
         self.timeout_s = timeout_s
@@ -34,8 +37,8 @@ class WeightsClient:
     def connect(self) -> None:
         self.close()
         ep = self.endpoints()
-        self.sub = sockets.connect_weights_sub(ep["weights_pub"])
-        self.dealer = sockets.connect_dealer(ep["weights_router"])
+        self.sub = sockets.connect_weights_sub(ep["weights_pub"], self.keys)
+        self.dealer = sockets.connect_dealer(ep["weights_router"], self.keys)
         self.requested_at = None
 
     def request_snapshot(self) -> None:
@@ -64,8 +67,7 @@ class WeightsClient:
                 frames = sock.recv_multipart(copy=False)
                 body = frames[1:] if sock is self.dealer else frames
                 try:
-                    msg = wire.decode(body, expect=wire.WeightsMsg)
-                    wire.check_finite(msg)
+                    msg = wire.decode(body, expect=wire.WeightsMsg)  # tensors finite by their wire rule
                 except wire.WireError as exc:
                     self.rejected += 1
                     log.warning("actor %d: rejected weights message: %s", self.actor_id, exc)

@@ -7,13 +7,24 @@ The policy module (normalizer + mean MLP + log-std) is exactly what actors need,
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 import torch
 from torch import nn
 
+from common.config_limits import (
+    Limit,
+    above,
+    at_least,
+    between,
+    check_limits,
+    validated,
+)
+
 
 @dataclass(frozen=True)
+@validated
 class PolicyConfig:
     hidden: tuple[int, ...] = (128, 128, 128)
     """Hidden layer widths of both policy and value MLPs (Won & Lee 2019: 3 x 128 ReLU)."""
@@ -30,6 +41,22 @@ class PolicyConfig:
     """Environment steps of the variance anneal."""
     obs_clip: float = 10.0
     """Normalized observations are clipped to [-obs_clip, obs_clip]."""
+
+    FLAG_PREFIX: ClassVar[str] = "policy"
+    LIMITS: ClassVar[dict[str, Limit]] = {
+        "hidden": at_least(1), "init_log_std": between(-20, 5), "final_log_std": between(-20, 5),
+        "log_std_anneal_steps": at_least(0), "obs_clip": above(0),
+    }
+    """Allowed values of the numeric fields (`common.config_limits`)."""
+
+    def validate(self) -> None:
+        """ValueError naming the first value outside what is allowed."""
+        check_limits(self)
+        if not self.hidden:
+            raise ValueError(f"--policy.hidden = {self.hidden!r}: give one or more layer widths")
+        if self.activation not in ("relu", "tanh", "elu"):
+            raise ValueError(f"--policy.activation = {self.activation!r}: give relu, tanh or elu")
+
 
 
 _ACTIVATIONS = {"relu": nn.ReLU, "tanh": nn.Tanh, "elu": nn.ELU}
@@ -127,12 +154,55 @@ def anneal_log_std(policy: GaussianPolicy, cfg: PolicyConfig, env_steps: int) ->
 
 
 class ValueNet(nn.Module):
+    """V(s) = mu + sigma * net(s): the MLP predicts returns standardized by running statistics
+    (`target_mean`, `target_std`), so its loss and gradient stay of order one whatever the
+    return scale. Until `update_target_stats` is called the statistics are (0, 1) and V(s) is
+    the MLP's output, as before the normalization existed."""
+
+    TARGET_RATE_MIN = 0.05
+    """Weight of the newest batch in the running return statistics once 20 batches are in
+    (before that, every batch weighs the same): returns grow as the policy improves."""
+
     def __init__(self, obs_dim: int, cfg: PolicyConfig):
         super().__init__()
         self.net = mlp([obs_dim, *cfg.hidden, 1], cfg.activation, out_gain=1.0)
+        self.register_buffer("target_mean", torch.zeros((), dtype=torch.float64))
+        self.register_buffer("target_sq", torch.ones((), dtype=torch.float64))
+        self.register_buffer("target_updates", torch.zeros((), dtype=torch.float64))
+
+    @property
+    def target_std(self) -> torch.Tensor:
+        return (self.target_sq - self.target_mean.square()).clamp(min=1e-4).sqrt()
 
     def forward(self, obs_normalized: torch.Tensor) -> torch.Tensor:
+        out = self.net(obs_normalized).squeeze(-1)
+        return out * self.target_std.to(out.dtype) + self.target_mean.to(out.dtype)
+
+    def standardized(self, obs_normalized: torch.Tensor) -> torch.Tensor:
+        """The MLP's output: the standardized return it predicts."""
         return self.net(obs_normalized).squeeze(-1)
+
+    def standardize(self, returns: torch.Tensor) -> torch.Tensor:
+        """Returns as the MLP's training targets: (G - mu) / sigma."""
+        return ((returns - self.target_mean.to(returns.dtype)) / self.target_std.to(returns.dtype))
+
+    @torch.no_grad()
+    def update_target_stats(self, returns: torch.Tensor) -> None:
+        """Fold a batch of returns into the running statistics and rescale the last layer so
+        that every V(s) is unchanged: PopArt's "preserve outputs precisely" (van Hasselt et al.
+        2016, eq. 4): W' = W sigma / sigma', b' = (sigma b + mu - mu') / sigma'."""
+        r = returns.detach().reshape(-1).to(torch.float64)
+        if r.numel() == 0 or not torch.isfinite(r).all():
+            return
+        rate = max(1.0 / float(self.target_updates + 1), self.TARGET_RATE_MIN)
+        old_mean, old_std = self.target_mean.clone(), self.target_std.clone()
+        self.target_mean.mul_(1 - rate).add_(rate * r.mean())
+        self.target_sq.mul_(1 - rate).add_(rate * r.square().mean())
+        self.target_updates.add_(1)
+        new_mean, new_std = self.target_mean, self.target_std
+        last = self.net[-1]
+        last.weight.mul_((old_std / new_std).to(last.weight.dtype))
+        last.bias.copy_(((old_std * last.bias.double() + old_mean - new_mean) / new_std).to(last.bias.dtype))
 
 
 def policy_tensors(policy: GaussianPolicy) -> dict[str, np.ndarray]:

@@ -14,7 +14,8 @@ from typing import Any, Callable
 
 import zmq
 
-from common import sockets, wire
+from common import curve, sockets, wire
+from common.curve import ACTOR, RefusalCounter, RunKeys
 
 log = logging.getLogger(__name__)
 
@@ -26,8 +27,11 @@ class ServiceUnavailable(RuntimeError):
 class RpcClient:
     """Lazy Pirate client. `endpoint` is a string or a callable returning the current one."""
 
-    def __init__(self, endpoint: str | Callable[[], str], timeout_s: float = 2.0, retries: int = 3):
+    def __init__(self, endpoint: str | Callable[[], str], timeout_s: float = 2.0, retries: int = 3,
+                 keys: RunKeys | None = None, role: str = ACTOR):
+        """`keys`, `role`: this run's CURVE keys and the role this client speaks in."""
         self._lookup = endpoint if callable(endpoint) else (lambda: endpoint)
+        self.keys, self.role = keys, role
         self.timeout_ms = int(timeout_s * 1000)
         self.retries = retries
         self.reconnects = 0
@@ -39,7 +43,7 @@ class RpcClient:
                 endpoint = self._lookup()
             except Exception as exc:  # noqa: BLE001 - a lookup that fails means "not there now"
                 raise ServiceUnavailable(f"could not look up the service endpoint: {exc}") from None
-            self._sock = sockets.connect_dealer(endpoint)
+            self._sock = sockets.connect_dealer(endpoint, self.keys, self.role)
         return self._sock
 
     def _reset(self) -> None:
@@ -80,10 +84,19 @@ class RpcClient:
 class RouterServer:
     """Decode-dispatch-reply on a bound ROUTER socket; never raises on a peer's bad input."""
 
-    def __init__(self, sock: zmq.Socket, handler: Callable[[Any], Any], name: str):
+    def __init__(self, sock: zmq.Socket, handler: Callable[[Any], Any], name: str,
+                 dims: dict[str, int] | None = None, roles: dict[type, frozenset[str]] | None = None):
+        """`dims` pins shape names of the requests (`wire.decode`), e.g. {"n_params": 3}.
+        `roles`: on a CURVE socket, the client roles allowed to send each message type (a type
+        not listed: any client of the run); a request from another role is refused as
+        `forbidden`. Peers the CURVE handshake refused are counted as `auth_*`."""
         self.sock = sock
         self.handler = handler
         self.name = name
+        self.dims = dims
+        self.roles = roles or {}
+        self.secured = bool(sock.get(zmq.CURVE_SERVER))
+        self.refusals = RefusalCounter(sock) if self.secured else None
         self.rejected: collections.Counter[str] = collections.Counter()
         self.served = 0
         self.undeliverable = 0
@@ -92,6 +105,8 @@ class RouterServer:
     def serve_pending(self, timeout_ms: int = 0, max_requests: int = 1000) -> int:
         """Answer requests that arrive within `timeout_ms`; returns how many were handled."""
         handled = 0
+        if self.refusals is not None:
+            self.refusals.poll(self.rejected)
         while handled < max_requests and self.sock.poll(timeout_ms if handled == 0 else 0, zmq.POLLIN):
             frames = self.sock.recv_multipart(copy=False)
             handled += 1
@@ -99,19 +114,38 @@ class RouterServer:
             # DEALER clients put an empty delimiter frame first; tolerate REQ-style and bare ones.
             body = frames[2:] if len(frames) > 1 and len(frames[1].bytes) == 0 else frames[1:]
             try:
-                request = wire.decode(body)
+                request = wire.decode(body, dims=self.dims)
+                self._check_role(request, curve.role_of(frames[0]))
                 wire.check_finite(request)
-                reply = self.handler(request)
+                reply = wire.encode(self.handler(request))
             except Exception as exc:  # noqa: BLE001 - nothing a peer sends may stop the service
-                kind = getattr(exc, "kind", "invalid" if isinstance(exc, ValueError) else "internal")
-                if self.rejected[kind] == 0:
-                    log.warning("%s: rejected a request (%s): %s", self.name, kind, exc)
-                self.rejected[kind] += 1
-                reply = wire.ErrorMsg(reason=str(exc), error_kind=kind)
+                reply = wire.encode(self._refuse(exc))
             self.served += 1
             try:
-                self.sock.send_multipart([identity, b"", *wire.encode(reply)], copy=False)
+                self.sock.send_multipart([identity, b"", *reply], copy=False)
             except zmq.ZMQError as exc:  # EHOSTUNREACH with ROUTER_MANDATORY: the peer left
                 self.undeliverable += 1
                 log.debug("%s: could not reply to a departed peer: %s", self.name, exc)
         return handled
+
+    def _check_role(self, request: Any, role: str) -> None:
+        allowed = self.roles.get(type(request))
+        if self.secured and allowed is not None and role not in allowed:
+            raise wire.WireError(f"{type(request).KIND} is taken only from {' or '.join(sorted(allowed))}, "
+                                 f"not from {role or 'an unknown peer'}", "forbidden")
+
+    def close(self) -> None:
+        if self.refusals is not None:
+            self.refusals.close()
+        if not self.sock.closed:
+            self.sock.close(linger=0)
+
+    def _refuse(self, exc: Exception) -> wire.ErrorMsg:
+        """Count a refused request under its kind; the ErrorMsg that answers it."""
+        kind = getattr(exc, "kind", None)
+        if not isinstance(kind, str):
+            kind = "invalid" if isinstance(exc, ValueError) else "internal"
+        if self.rejected[kind] == 0:
+            log.warning("%s: rejected a request (%s): %s", self.name, kind, exc)
+        self.rejected[kind] += 1
+        return wire.ErrorMsg(reason=str(exc)[:4096], error_kind=kind[:64])

@@ -1,6 +1,10 @@
 """Every ZeroMQ socket of the system is made here, with its high-water mark, LINGER and what
 it loses when a limit is hit written beside the option.
 
+Every function takes the run's CURVE keys (`common.curve.RunKeys`; None: no authentication, for
+tests of the codec alone and `--no-curve`): a bound socket becomes a CURVE server that admits
+only this run's clients, a connecting one a client in its role (`curve.ACTOR` or `curve.LEARNER`).
+
 Patterns (DESIGN.md "Data flows"):
     unrolls   actor PUSH  -> learner PULL (learner binds)
     weights   learner PUB -> actor SUB, plus a snapshot request DEALER -> learner ROUTER
@@ -10,6 +14,9 @@ Patterns (DESIGN.md "Data flows"):
 from __future__ import annotations
 
 import zmq
+
+from common import curve
+from common.curve import ACTOR, RunKeys
 
 UNROLL_SEND_HWM = 4
 """Unrolls an actor may queue before `send` blocks: backpressure slows collection, loses nothing."""
@@ -22,8 +29,10 @@ WEIGHTS_HWM = 2
 ROUTER_HWM = 1000
 """Requests/replies queued per peer; with ROUTER_MANDATORY a full or gone peer raises instead of a silent drop."""
 LINGER_MS = 0
-"""On close, pending outgoing messages are discarded at once: shutdown never hangs on a dead peer;
-unrolls in flight at shutdown are lost by design (the run is stopping)."""
+"""On close, pending outgoing messages are discarded at once: shutdown never hangs on a dead peer.
+Unrolls are not lost uncounted at shutdown: the learner drains its PULL until each actor's final
+heartbeat before the actors close (`LearnerTransport.drain`), and that heartbeat's sequence number
+counts whatever did not arrive."""
 
 
 def context() -> zmq.Context:
@@ -44,19 +53,21 @@ def _bind(sock: zmq.Socket, address: str) -> str:
     return sock.getsockopt_string(zmq.LAST_ENDPOINT)
 
 
-def bind_unroll_pull(address: str) -> tuple[zmq.Socket, str]:
+def bind_unroll_pull(address: str, keys: RunKeys | None = None) -> tuple[zmq.Socket, str]:
     """Learner side of the unroll stream."""
     sock = context().socket(zmq.PULL)
+    curve.make_server(sock, keys)
     sock.setsockopt(zmq.RCVHWM, UNROLL_RECV_HWM)
     sock.setsockopt(zmq.MAXMSGSIZE, 256 * 1024 * 1024)  # a larger frame drops that peer's connection
     sock.setsockopt(zmq.LINGER, LINGER_MS)
     return sock, _bind(sock, address)
 
 
-def connect_unroll_push(endpoint_: str) -> zmq.Socket:
+def connect_unroll_push(endpoint_: str, keys: RunKeys | None = None) -> zmq.Socket:
     """Actor side of the unroll stream. `send` blocks when the learner falls behind (backpressure);
     callers use a send timeout so a vanished learner cannot hang an actor forever."""
     sock = context().socket(zmq.PUSH)
+    curve.make_client(sock, keys, ACTOR)
     sock.setsockopt(zmq.SNDHWM, UNROLL_SEND_HWM)
     sock.setsockopt(zmq.LINGER, LINGER_MS)
     sock.setsockopt(zmq.SNDTIMEO, 5000)  # a blocked send raises zmq.Again after 5 s: counted, retried
@@ -65,16 +76,18 @@ def connect_unroll_push(endpoint_: str) -> zmq.Socket:
     return sock
 
 
-def bind_weights_pub(address: str) -> tuple[zmq.Socket, str]:
+def bind_weights_pub(address: str, keys: RunKeys | None = None) -> tuple[zmq.Socket, str]:
     """Learner publishes weights; slow joiners miss messages, hence the snapshot ROUTER."""
     sock = context().socket(zmq.PUB)
+    curve.make_server(sock, keys)
     sock.setsockopt(zmq.SNDHWM, WEIGHTS_HWM)
     sock.setsockopt(zmq.LINGER, LINGER_MS)
     return sock, _bind(sock, address)
 
 
-def connect_weights_sub(endpoint_: str) -> zmq.Socket:
+def connect_weights_sub(endpoint_: str, keys: RunKeys | None = None) -> zmq.Socket:
     sock = context().socket(zmq.SUB)
+    curve.make_client(sock, keys, ACTOR)
     sock.setsockopt(zmq.RCVHWM, WEIGHTS_HWM)
     sock.setsockopt(zmq.LINGER, LINGER_MS)
     sock.setsockopt(zmq.SUBSCRIBE, b"")
@@ -82,9 +95,10 @@ def connect_weights_sub(endpoint_: str) -> zmq.Socket:
     return sock
 
 
-def bind_router(address: str) -> tuple[zmq.Socket, str]:
+def bind_router(address: str, keys: RunKeys | None = None) -> tuple[zmq.Socket, str]:
     """A request/reply service (the learner's weight snapshots, the sampler)."""
     sock = context().socket(zmq.ROUTER)
+    curve.make_server(sock, keys)
     sock.setsockopt(zmq.ROUTER_MANDATORY, 1)  # reply to a vanished peer raises EHOSTUNREACH instead of vanishing
     sock.setsockopt(zmq.SNDHWM, ROUTER_HWM)
     sock.setsockopt(zmq.RCVHWM, ROUTER_HWM)
@@ -93,10 +107,12 @@ def bind_router(address: str) -> tuple[zmq.Socket, str]:
     return sock, _bind(sock, address)
 
 
-def connect_dealer(endpoint_: str) -> zmq.Socket:
-    """A client of a ROUTER service. Lazy Pirate: on a reply timeout the caller closes this
-    socket and makes a new one, so a lost request or a restarted service cannot wedge it."""
+def connect_dealer(endpoint_: str, keys: RunKeys | None = None, role: str = ACTOR) -> zmq.Socket:
+    """A client of a ROUTER service, in `role`. Lazy Pirate: on a reply timeout the caller
+    closes this socket and makes a new one, so a lost request or a restarted service cannot
+    wedge it."""
     sock = context().socket(zmq.DEALER)
+    curve.make_client(sock, keys, role)
     sock.setsockopt(zmq.SNDHWM, ROUTER_HWM)
     sock.setsockopt(zmq.RCVHWM, ROUTER_HWM)
     sock.setsockopt(zmq.LINGER, LINGER_MS)

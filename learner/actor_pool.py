@@ -8,6 +8,7 @@ import logging
 from typing import Protocol
 
 from actors.actor import RolloutActor
+from common.curve import RunKeys
 from learner.config import RunConfig
 
 log = logging.getLogger(__name__)
@@ -24,9 +25,9 @@ class ActorPool(Protocol):
 
 
 class SerialActorPool:
-    def __init__(self, cfg: RunConfig, endpoints: dict[str, str]):
+    def __init__(self, cfg: RunConfig, endpoints: dict[str, str], keys: RunKeys | None = None):
         self.actors = [
-            RolloutActor(i, cfg.task, cfg.policy, cfg.actors, endpoints, seed=cfg.seed + 1000 * (i + 1))
+            RolloutActor(i, cfg.task, cfg.policy, cfg.actors, endpoints, seed=cfg.seed + 1000 * (i + 1), keys=keys)
             for i in range(cfg.actors.num_actors)
         ]
 
@@ -47,7 +48,10 @@ class SerialActorPool:
 
 
 class RayActorPool:
-    def __init__(self, cfg: RunConfig, endpoints: dict[str, str], ctx, sampler_handle=None) -> None:
+    def __init__(self, cfg: RunConfig, endpoints: dict[str, str], ctx, sampler_handle=None,
+                 keys: RunKeys | None = None) -> None:
+        """`keys`: the run's CURVE keys as actors hold them (`RunKeys.for_actors`), handed to each
+        actor through Ray (the cluster's own token authentication guards that channel)."""
         import ray
 
         from learner import cluster
@@ -57,7 +61,7 @@ class RayActorPool:
         opts = cluster.actor_options(ctx, cluster.ROLLOUT_RESOURCE, 1.0, cfg.actors.num_cpus)
         self.handles = [
             remote_cls.options(max_concurrency=2, max_restarts=cfg.actor_max_restarts, **opts).remote(
-                i, cfg.task, cfg.policy, cfg.actors, endpoints, cfg.seed + 1000 * (i + 1), sampler_handle
+                i, cfg.task, cfg.policy, cfg.actors, endpoints, cfg.seed + 1000 * (i + 1), sampler_handle, keys
             )
             for i in range(cfg.actors.num_actors)
         ]

@@ -7,17 +7,28 @@ from __future__ import annotations
 import dataclasses
 import json
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import ClassVar, Literal
 
 from actors.config import ActorConfig
+from common.config_limits import (
+    Limit,
+    above,
+    at_least,
+    between,
+    check_limits,
+    validated,
+)
 from common.policy import PolicyConfig
 from common.tasks.base import TaskConfig
+from common.tasks.body_config import BodyConfig
 from common.tasks.executor_config import ExecutorConfig
+from common.tasks.imitate_config import ImitateConfig
 from learner.ppo import PPOConfig
 from sampler.config import SamplerConfig
 
 
 @dataclass(frozen=True)
+@validated
 class RunConfig:
     name: str = "reach"
     """Run name: outputs go to `<runs_dir>/<name>/`."""
@@ -70,32 +81,33 @@ class RunConfig:
     (at least 1). NOTE: more threads than free cores makes OpenMP spin against the actors."""
     quiet: bool = False
     """Write progress only to log.txt and TensorBoard, not the console."""
+    curve: bool = True
+    """Authenticate and encrypt every ZeroMQ socket with CURVE, with keys made for this run and
+    handed to actors and sampler through Ray: a peer without them is refused and counted
+    (`common.curve`). `--no-curve` only to measure what it costs or to debug the wire."""
     task: TaskConfig = field(default_factory=TaskConfig)
     policy: PolicyConfig = field(default_factory=PolicyConfig)
     ppo: PPOConfig = field(default_factory=PPOConfig)
     actors: ActorConfig = field(default_factory=ActorConfig)
     sampler: SamplerConfig = field(default_factory=SamplerConfig)
 
-    def __post_init__(self) -> None:
-        positive = ("total_env_steps", "steps_per_iteration", "checkpoint_every", "keep_checkpoints")
-        for name in positive:
-            if getattr(self, name) <= 0:
-                raise ValueError(f"--{name.replace('_', '-')} = {getattr(self, name)} must be > 0")
-        if self.max_policy_lag < 0:
-            raise ValueError(f"--max-policy-lag = {self.max_policy_lag} must be >= 0")
+    FLAG_PREFIX: ClassVar[str] = ""
+    LIMITS: ClassVar[dict[str, Limit]] = {
+        "port_base": between(0, 65532, integer=True), "total_env_steps": at_least(1), "max_iterations": at_least(0),
+        "steps_per_iteration": at_least(1), "max_policy_lag": at_least(0), "seed": between(0, 2**32 - 1, integer=True),
+        "checkpoint_every": at_least(1), "keep_checkpoints": at_least(1), "value_pairs_per_iteration": at_least(0),
+        "vm_plot_every": at_least(0), "actor_max_restarts": at_least(-1), "stall_timeout_s": above(0),
+        "learner_threads": at_least(0),
+    }
+    """Allowed values of the numeric fields (`common.config_limits`)."""
+
+    def validate(self) -> None:
+        """ValueError naming the first value outside what is allowed."""
+        check_limits(self)
         if self.ppo.minibatch > self.steps_per_iteration:
             raise ValueError(
                 f"--ppo.minibatch {self.ppo.minibatch} exceeds --steps-per-iteration {self.steps_per_iteration}"
             )
-        if self.ppo.kl_stop < 0:
-            raise ValueError(f"--ppo.kl-stop = {self.ppo.kl_stop} must be >= 0 (0 turns it off)")
-        if not self.ppo.behaviour_weight_max >= 1.0:
-            raise ValueError(f"--ppo.behaviour-weight-max = {self.ppo.behaviour_weight_max} must be >= 1 "
-                             "(fresh samples have weight 1)")
-        if self.policy.log_std_anneal_steps < 0:
-            raise ValueError(f"--policy.log-std-anneal-steps = {self.policy.log_std_anneal_steps} must be >= 0")
-        if not 0.0 < self.task.shape_box_scale <= 1.0:
-            raise ValueError(f"--task.shape-box-scale = {self.task.shape_box_scale} must be in (0, 1] (1: the whole box)")
         self.task.substeps  # noqa: B018 - validates sim_hz / control_hz
 
     @property
@@ -116,14 +128,28 @@ class RunConfig:
 
 
 _NESTED = {"task": TaskConfig, "policy": PolicyConfig, "ppo": PPOConfig, "actors": ActorConfig, "sampler": SamplerConfig,
-           "executor": ExecutorConfig}
+           "executor": ExecutorConfig, "body": BodyConfig, "imitate": ImitateConfig}
 """Fields that hold a config dataclass (by field name), rebuilt from their JSON objects."""
+
+
+def _task_sections(raw: dict) -> dict:
+    """A task config written before each task had its own section (one flat TaskConfig, up to
+    session 21): its body and shape-task keys move into `body` and `imitate`, so the shipped
+    checkpoints and old runs load with the settings they were trained with."""
+    raw = dict(raw)
+    for section, cls in (("body", BodyConfig), ("imitate", ImitateConfig)):
+        moved = {f.name: raw.pop(f.name) for f in dataclasses.fields(cls) if f.name in raw}
+        if moved:
+            raw[section] = {**moved, **raw.get(section, {})}
+    return raw
 
 
 def _from_dict(cls: type, raw: dict):
     """`cls(**raw)` with nested config dataclasses rebuilt and JSON lists turned back into tuples;
     keys the class no longer has (a config written by an older version) are dropped."""
     names = {f.name for f in dataclasses.fields(cls)}
+    if cls is TaskConfig:
+        raw = _task_sections(raw)
     kwargs = {}
     for k, v in raw.items():
         if k not in names:

@@ -1,6 +1,8 @@
 """Heartbeat-based health of the rollout actors, as the learner sees it.
 
-Every unroll and heartbeat refreshes an actor's last-seen time (`LearnerTransport.last_seen`).
+Every unroll and heartbeat refreshes an actor's last-seen time (`LearnerTransport.last_seen`);
+only a valid message from a configured actor id does, so a hostile or mistaken peer cannot add a
+phantom actor to these counts (`rejected/unknown_actor` counts it instead).
 An actor silent for `stall_timeout_s` is declared stalled: counted once, logged, and excluded
 from the alive count (its late unrolls, if it ever sends them, are stale and dropped by the
 policy-lag rule). When it sends again it is re-admitted, counted and logged. The learner never

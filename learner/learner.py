@@ -113,7 +113,10 @@ class Learner:
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.policy.load_state_dict(state["policy"])
-        self.value.load_state_dict(state["value"])
+        # NOTE: checkpoints from before the value net's return statistics have none; (0, 1) is
+        # what their value net computed, and the first update's output-preserving rescale starts there.
+        self.value.load_state_dict({**{k: v for k, v in self.value.state_dict().items() if k.startswith("target_")},
+                                    **state["value"]})
         self.ppo.optimizer.load_state_dict(state["optimizer"])
         self.ppo.restore_lr(float(state["lr"]))
         self.iteration = int(state["iteration"])

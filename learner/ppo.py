@@ -8,14 +8,24 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import torch
 from torch import nn
 
+from common.config_limits import (
+    Limit,
+    above,
+    at_least,
+    between,
+    check_limits,
+    validated,
+)
 from common.policy import GaussianPolicy, ValueNet
 
 
 @dataclass(frozen=True)
+@validated
 class PPOConfig:
     gamma: float = 0.95
     """Discount (Won & Lee 2019 use 0.95)."""
@@ -57,6 +67,26 @@ class PPOConfig:
     KL budget is spent before it starts (clip fraction about 0.5 in the lower-biped runs)."""
     behaviour_weight_max: float = 2.0
     """Cap of the importance weight pi_prox / pi_behaviour with `proximal_anchor` (V-trace style)."""
+    value_normalization: bool = True
+    """Train the value net on standardized returns (running statistics, PopArt's output-preserving
+    rescale: `common.policy.ValueNet`). Off: raw returns, whose gradient was about 100 times the
+    policy's with returns of about 100 (the old behaviour, for the comparison)."""
+
+    FLAG_PREFIX: ClassVar[str] = "ppo"
+    LIMITS: ClassVar[dict[str, Limit]] = {
+        "gamma": between(0, 1, lo_open=True), "gae_lambda": between(0, 1), "clip": between(0, 1, lo_open=True),
+        "epochs": at_least(1), "minibatch": at_least(1), "lr": between(0, 1), "vf_coef": at_least(0, False),
+        "entropy_coef": at_least(0, False), "kl_coef": at_least(0, False), "kl_target": above(0), "kl_stop": at_least(0, False),
+        "max_grad_norm": above(0), "behaviour_weight_max": at_least(1, False),
+    }
+    """Allowed values of the numeric fields (`common.config_limits`)."""
+
+    def validate(self) -> None:
+        """ValueError naming the first value outside what is allowed."""
+        check_limits(self)
+        if self.lr_schedule not in ("constant", "linear", "adaptive"):
+            raise ValueError(f"--ppo.lr-schedule = {self.lr_schedule!r}: give constant, linear or adaptive")
+
 
 
 @dataclass
@@ -175,7 +205,8 @@ class PPO:
                           for i in range(0, obs_raw.shape[0], chunk)])
 
     def update(self, batch: Batch, generator: torch.Generator | None = None) -> dict[str, float]:
-        """Normalizer update, GAE, then `epochs` passes of minibatch gradient steps.
+        """GAE, the value targets' statistics, `epochs` passes of minibatch gradient steps, then
+        the observation normalizer's update.
 
         The maths of `learner.ppo_reference.reference_update` (the textbook loop; a test holds the
         two to the same parameters after two updates), with less work around each minibatch
@@ -194,7 +225,9 @@ class PPO:
         policy, value, normalizer = self.policy, self.value, self.policy.normalizer
         T, B = batch.rewards.shape
         flat = lambda x: x.reshape(T * B, *x.shape[2:])  # noqa: E731
-        normalizer.update(flat(batch.obs))
+        # NOTE: the observation statistics move only after the epochs: the actors' log-probabilities
+        # were taken with these, so the first minibatch's ratio is 1 (it was not, by the
+        # normalizer's own step, when they moved first).
         with torch.no_grad():
             obs_n = normalizer(flat(batch.obs))
             values = value(obs_n)
@@ -203,13 +236,16 @@ class PPO:
                            cfg.gamma, cfg.gae_lambda)
         actions, old_logp = flat(batch.actions), flat(batch.logp)
         adv, returns = flat(adv), flat(returns)
+        if cfg.value_normalization:
+            value.update_target_stats(returns)
+        targets = value.standardize(returns)
         n = obs_n.shape[0]
         weights = None
         if cfg.proximal_anchor:
             behaviour_logp = old_logp
             old_logp = self.log_prob(flat(batch.obs), actions)
             weights = (old_logp - behaviour_logp).exp().clamp(max=cfg.behaviour_weight_max)
-        per_sample = [obs_n, actions, old_logp, adv, returns] + ([] if weights is None else [weights])
+        per_sample = [obs_n, actions, old_logp, adv, targets] + ([] if weights is None else [weights])
         policy_params, value_params = list(policy.parameters()), list(value.parameters())
         records: list[torch.Tensor] = []
         steps = policy_steps = 0
@@ -224,7 +260,7 @@ class PPO:
                 with torch.set_grad_enabled(policy_active):
                     policy_loss, entropy, kl, clip_frac = _policy_losses(
                         policy.mean_net(o), policy.log_std, act, olp, a, w[0] if w else None, cfg)
-                value_loss = 0.5 * (value.net(o).squeeze(-1) - ret).square().mean()
+                value_loss = 0.5 * (value.standardized(o) - ret).square().mean()
                 total = policy_loss + cfg.vf_coef * value_loss
                 if cfg.entropy_coef:
                     total = total - cfg.entropy_coef * entropy
@@ -233,6 +269,7 @@ class PPO:
                 if not torch.isfinite(total):
                     self.skipped_updates += 1
                     continue
+                measured_moving = policy_active  # this KL measures the policy as the update moved it
                 if policy_active and cfg.kl_stop > 0 and policy_steps and kl.item() > cfg.kl_stop:
                     policy_active = False
                 for p in policy_params:
@@ -248,14 +285,21 @@ class PPO:
                 value_grad_norm = _clip_grad_norm_(value_params, cfg.max_grad_norm)
                 self.optimizer.step()
                 with torch.no_grad():
-                    records.append(torch.stack([total, policy_loss, value_loss, entropy, kl, clip_frac, grad_norm, value_grad_norm]))
+                    records.append(torch.stack([total, policy_loss, value_loss, entropy, kl, clip_frac, grad_norm, value_grad_norm,
+                                                torch.tensor(float(measured_moving))]))
                 steps += 1
                 policy_steps += policy_active
+        normalizer.update(flat(batch.obs))
         metrics: dict[str, float] = {}
         if records:
-            sums = torch.stack(records).double().sum(0).tolist()
+            table = torch.stack(records).double()
+            sums = table.sum(0).tolist()
             names = ("total", "policy", "value", "entropy", "kl", "clip_frac", "grad_norm", "value_grad_norm")
             metrics = {k: v / steps for k, v in zip(names, sums)}
+            # NOTE: the KL of the minibatches that measured the moving policy (up to and including
+            # the one that stopped it), not of the later ones, which all sit at the frozen policy's.
+            moving = table[:, 8]
+            metrics["kl"] = float((table[:, 4] * moving).sum() / moving.sum().clamp(min=1.0))
         if cfg.lr_schedule == "adaptive" and steps:
             # Schulman et al.'s adaptive rule, applied to the step size rather than a KL weight.
             kl_mean = metrics["kl"]
@@ -267,6 +311,7 @@ class PPO:
         metrics.update(
             lr=self.lr,
             explained_variance=_explained_variance(values, returns),
+            value_target_std=float(value.target_std),
             skipped_updates=float(self.skipped_updates),
             log_std=self.policy.log_std.detach().mean().item(),
             minibatch_steps=float(steps),

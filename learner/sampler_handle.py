@@ -14,6 +14,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from common.curve import LEARNER, RunKeys
 from common.params import ParamSpace
 from common.rpc import ServiceUnavailable
 from common.wire import WireError
@@ -46,13 +47,21 @@ class SamplerHandle:
     down_until: float = 0.0
 
     @staticmethod
-    def start(config: SamplerConfig, space: ParamSpace, clips: Sequence[tuple[str, str]], ctx) -> "SamplerHandle":
+    def start(config: SamplerConfig, space: ParamSpace, clips: Sequence[tuple[str, str]], ctx,
+              keys: RunKeys | None = None) -> "SamplerHandle":
+        """Start the service (with the run's CURVE keys as the sampler holds them) and a client
+        that speaks as the learner."""
+        service_keys = keys.for_sampler() if keys is not None else None
+
+        def client(endpoint) -> SamplerClient:
+            return SamplerClient(endpoint, timeout_s=LEARNER_TIMEOUT_S, retries=2, keys=keys, role=LEARNER)
+
         if ctx is None:
             from sampler.actor import start_in_thread
 
-            service, thread, stop_event = start_in_thread(config, space, clips)
+            service, thread, stop_event = start_in_thread(config, space, clips, keys=service_keys)
             endpoint = service.endpoint
-            return SamplerHandle(endpoint, SamplerClient(endpoint, timeout_s=LEARNER_TIMEOUT_S, retries=2), config, space, clips, thread=thread, stop_event=stop_event)
+            return SamplerHandle(endpoint, client(endpoint), config, space, clips, thread=thread, stop_event=stop_event)
         import ray
 
         from learner import cluster
@@ -60,13 +69,13 @@ class SamplerHandle:
 
         opts = cluster.actor_options(ctx, cluster.SAMPLER_RESOURCE, 0.01, 0.0)
         opts.pop("scheduling_strategy", None)
-        handle = ray.remote(SamplerActor).options(max_restarts=-1, **opts).remote(config, space, list(clips))
+        handle = ray.remote(SamplerActor).options(max_restarts=-1, **opts).remote(config, space, list(clips), service_keys)
         endpoint = ray.get(handle.endpoint.remote(), timeout=120)
 
         def lookup() -> str:  # a restarted sampler binds a new port: ask it where, every reconnect
             return ray.get(handle.endpoint.remote(), timeout=10)
 
-        return SamplerHandle(endpoint, SamplerClient(lookup, timeout_s=LEARNER_TIMEOUT_S, retries=2), config, space, clips, ray_handle=handle)
+        return SamplerHandle(endpoint, client(lookup), config, space, clips, ray_handle=handle)
 
     def _call(self, what: str, fn, default):
         """Call the sampler; on failure count it and, for an outage, skip further calls for

@@ -8,29 +8,37 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Callable, NoReturn
 
 import torch
 
+from common.curve import RunKeys
 from common.tasks.registry import task_clips, task_space
 from learner import checkpoint, cluster
 from learner.actor_pool import RayActorPool, SerialActorPool
-from learner.config import RunConfig
 from learner.collector import Collector
+from learner.config import RunConfig
 from learner.health import HealthMonitor
 from learner.learner import Learner
 from learner.run_log import RunLog
-from learner.signals import StopFlag
 from learner.sampler_handle import SamplerHandle
+from learner.signals import StopFlag
 from learner.transport import LearnerTransport
 
 log = logging.getLogger(__name__)
 
-def prepare_run_dir(cfg: RunConfig) -> tuple[Path, tuple[Path, dict] | None]:
-    """Create the run directory; find the checkpoint to resume from per `cfg.resume`."""
+def usage_error(message: str) -> NoReturn:
+    """One line on stderr and exit code 2, as for any bad command-line value."""
+    print(f"python -m learner.main: {message}", file=sys.stderr)
+    raise SystemExit(2)
+
+
+def find_resume(cfg: RunConfig) -> tuple[Path, tuple[Path, dict] | None]:
+    """The run directory (not created yet) and the checkpoint to resume from per `cfg.resume`."""
     run_dir = Path(cfg.runs_dir) / cfg.name
     ckpt_dir = run_dir / "ckpt"
     resume_from = None
@@ -38,18 +46,29 @@ def prepare_run_dir(cfg: RunConfig) -> tuple[Path, tuple[Path, dict] | None]:
         resume_from = checkpoint.load_latest(ckpt_dir)
     elif cfg.resume == "never":
         if checkpoint.list_checkpoints(ckpt_dir):
-            raise SystemExit(
-                f"run {run_dir} already has checkpoints; use --resume auto to continue it, or another --name"
-            )
+            usage_error(f"run {run_dir} already has checkpoints; use --resume auto to continue it, or another --name")
     else:
         path = Path(cfg.resume)
         try:
             resume_from = (path, checkpoint.load(path))
         except checkpoint.CheckpointError as exc:
-            raise SystemExit(f"--resume {cfg.resume}: {exc}. Give a checkpoint directory, or auto, or never.") from None
-    run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "config.json").write_text(cfg.to_json() + "\n")
+            usage_error(f"--resume {cfg.resume}: {exc}. Give a checkpoint directory, or auto, or never.")
     return run_dir, resume_from
+
+
+def resumed_learner(cfg: RunConfig, resume_from: tuple[Path, dict] | None) -> Learner:
+    """The learner, with the checkpoint's state if resuming; a checkpoint of another task or
+    network is a usage error (exit 2) before anything is written."""
+    learner = Learner(cfg)
+    if resume_from is not None:
+        path, state = resume_from
+        try:
+            learner.load_state_dict(state)
+        except (RuntimeError, KeyError, ValueError, TypeError) as exc:
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            usage_error(f"checkpoint {path} does not fit preset/task {cfg.task.name!r} with policy {cfg.policy.hidden} "
+                        f"({type(exc).__name__}: {first}); give the same --preset and network it was trained with")
+    return learner
 
 
 @dataclass
@@ -69,6 +88,8 @@ class Run:
     collector: Collector | None = None
     health: HealthMonitor | None = None
     last_saved: int = -1
+    keys: RunKeys | None = None
+    """This run's CURVE keys (`common.curve`), made at start; None with `--no-curve`."""
 
     def save(self) -> None:
         state = self.learner.state_dict()
@@ -89,24 +110,28 @@ class Run:
 
 
 def _start(cfg: RunConfig) -> Run:
-    run_dir, resume_from = prepare_run_dir(cfg)
+    run_dir, resume_from = find_resume(cfg)
+    torch.set_num_threads(cfg.resolved_learner_threads)
+    learner = resumed_learner(cfg, resume_from)
+    run_dir.mkdir(parents=True, exist_ok=True)  # NOTE: only once the configuration and checkpoint are known good
+    (run_dir / "config.json").write_text(cfg.to_json() + "\n")
     out = RunLog(run_dir, quiet=cfg.quiet)
+    if resume_from is not None:
+        out.line(f"[morphmimic] resumed {resume_from[0]} at iteration {learner.iteration}, {learner.env_steps:,d} env steps")
     stop = StopFlag()
     ctx = None if cfg.mode == "serial" else cluster.connect(cfg.mode, cfg.ray_address, cfg.actors.num_actors, cfg.actors.num_cpus)
     stop.install()  # after ray.init, which installs handlers of its own
-    torch.set_num_threads(cfg.resolved_learner_threads)
-    learner = Learner(cfg)
-    if resume_from is not None:
-        path, state = resume_from
-        learner.load_state_dict(state)
-        out.line(f"[morphmimic] resumed {path} at iteration {learner.iteration}, {learner.env_steps:,d} env steps")
     host = cluster.bind_host(ctx, cfg.bind_host)
     if not cfg.actors.seq_ledger_dir and host == "127.0.0.1":
         cfg = dataclasses.replace(cfg, actors=dataclasses.replace(cfg.actors, seq_ledger_dir=str(run_dir / "ledger")))
-    transport = LearnerTransport(host, learner.obs_dim, learner.act_dim, learner.space.dim, cfg.port_base)
+    keys = RunKeys.generate() if cfg.curve else None  # NOTE: per run and per session, never written to disk
+    transport = LearnerTransport(host, learner.obs_dim, learner.act_dim, learner.space.dim, cfg.port_base,
+                                 unroll_length=cfg.actors.unroll_length, envs_per_actor=cfg.actors.envs_per_actor,
+                                 num_actors=cfg.actors.num_actors, keys=keys)
     if resume_from is not None and "transport" in resume_from[1]:
         transport.load_state_dict(resume_from[1]["transport"])
-    run = Run(cfg, run_dir, out, stop, ctx, learner, transport, last_saved=learner.iteration if resume_from else -1)
+    run = Run(cfg, run_dir, out, stop, ctx, learner, transport, last_saved=learner.iteration if resume_from else -1,
+              keys=keys)
     try:
         _start_services(run, host, resume_from)
     except BaseException:
@@ -124,17 +149,18 @@ def _start_services(run: Run, host: str, resume_from) -> None:
         seed=cfg.sampler.seed + cfg.seed,
         port=cfg.port_base + 3 if cfg.port_base else cfg.sampler.port,
     )
-    run.sampler = SamplerHandle.start(sampler_cfg, task_space(cfg.task), task_clips(cfg.task), ctx)
+    run.sampler = SamplerHandle.start(sampler_cfg, task_space(cfg.task), task_clips(cfg.task), ctx, keys=run.keys)
     if resume_from is not None and resume_from[1].get("sampler"):
         run.sampler.saved_state = checkpoint.from_checkpointable(resume_from[1]["sampler"])
         run.sampler.client.set_state(run.sampler.saved_state)
     endpoints = {**transport.endpoints, "sampler": run.sampler.endpoint}
     out.line(f"[morphmimic] run {run.run_dir} | mode {ctx.kind if ctx else 'serial'} | endpoints {endpoints}")
     transport.publish(learner.weights_msg())
+    actor_keys = run.keys.for_actors() if run.keys is not None else None
     if ctx is None:
-        run.pool = SerialActorPool(cfg, endpoints)
+        run.pool = SerialActorPool(cfg, endpoints, keys=actor_keys)
     else:
-        run.pool = RayActorPool(cfg, endpoints, ctx, sampler_handle=run.sampler.ray_handle)
+        run.pool = RayActorPool(cfg, endpoints, ctx, sampler_handle=run.sampler.ray_handle, keys=actor_keys)
     run.health = HealthMonitor(transport.last_seen, cfg.stall_timeout_s, out.line)
     run.collector = Collector(transport, run.pool, cfg, run.stop, ctx is None, out)
 
@@ -192,19 +218,27 @@ def train(cfg: RunConfig, on_iteration: Callable[[Run, dict[str, float]], None] 
         learner = run.learner
         start_steps, start_time = learner.env_steps, time.monotonic()
         last = start_time
-        while learner.env_steps < cfg.total_env_steps and not run.stop:
-            if cfg.max_iterations and learner.iteration >= cfg.max_iterations:
-                break
-            metrics = _iterate(run, start_steps, start_time)
-            if metrics is None:
-                break
-            now = time.monotonic()
-            learner.train_seconds += now - last
-            last = now
-            if on_iteration is not None:
-                on_iteration(run, metrics)
-            if learner.iteration % cfg.checkpoint_every == 0:
-                run.save()
+        try:
+            while learner.env_steps < cfg.total_env_steps and not run.stop:
+                if cfg.max_iterations and learner.iteration >= cfg.max_iterations:
+                    break
+                metrics = _iterate(run, start_steps, start_time)
+                if metrics is None:
+                    break
+                now = time.monotonic()
+                learner.train_seconds += now - last
+                last = now
+                if on_iteration is not None:
+                    on_iteration(run, metrics)
+                if learner.iteration % cfg.checkpoint_every == 0:
+                    run.save()
+        except Exception as exc:
+            _save_on_crash(run, exc)
+            raise
+        try:
+            _drain_at_stop(run)
+        except Exception:  # the final checkpoint below matters more than the drain's count
+            log.exception("draining the unroll socket at stop failed")
         run.transport.counters["unused_at_stop"] += len(run.collector.pending)
         if learner.iteration != run.last_saved:
             run.save()
@@ -218,6 +252,47 @@ def train(cfg: RunConfig, on_iteration: Callable[[Run, dict[str, float]], None] 
         return 0
     finally:
         _close(run)
+
+
+def _save_on_crash(run: Run, exc: Exception) -> None:
+    """An unexpected exception in the loop: write a checkpoint of the iterations done since the
+    last one before the exception ends the process (a crash used to lose up to
+    `checkpoint_every - 1` iterations). NOTE: an exception inside the PPO update may leave that
+    iteration's minibatch steps partly applied; the checkpoint keeps them, under the number of
+    the last completed iteration."""
+    if run.learner.iteration == run.last_saved:
+        return
+    run.out.line(f"[morphmimic] {type(exc).__name__} in the training loop at iteration {run.learner.iteration}: "
+                 f"{exc}; writing a checkpoint before exiting")
+    try:
+        run.save()
+    except Exception:  # the original exception is the one to report
+        log.exception("could not write a checkpoint after the crash")
+
+
+def _drain_at_stop(run: Run) -> None:
+    """Tell the actors to stop, then read what they still send until each says it stopped (a
+    final heartbeat carrying the last sequence number it used): drained unrolls are counted
+    (`drained_at_stop`, `unused_at_stop`) and any tail an actor numbered but the learner never
+    got becomes a counted gap, so nothing is left "in flight" at the end."""
+    pool, transport, learner = run.pool, run.transport, run.learner
+    if pool is None:
+        return
+    between = None
+    if isinstance(pool, RayActorPool):
+        expect = set(pool.runs)  # actors whose loop runs (or waits for Ray to restart them)
+        for i in expect:
+            try:
+                pool.handles[i].stop.remote()
+            except Exception as exc:  # noqa: BLE001 - an actor gone for good sends no final heartbeat
+                log.warning("could not tell actor %d to stop: %s", i, exc)
+    else:  # serial: the actors live here and send their final heartbeat between reads
+        expect = set(range(len(pool.actors)))
+        between = lambda: [a.finish() for a in pool.actors]
+    drained = transport.drain(learner.policy_version, run.cfg.max_policy_lag, expect, between=between)
+    missing = sorted(expect - transport.finals.keys())
+    run.out.line(f"[morphmimic] drained {drained} unroll(s) at stop; lost unrolls (sequence gaps) "
+                 f"{transport.lost()}" + (f"; no final word from actor(s) {missing}" if missing else ""))
 
 
 def _wire_metrics(transport: LearnerTransport, learner: Learner, pool) -> dict[str, float]:

@@ -1,7 +1,15 @@
 """The learner's sockets: PULL for unrolls, PUB for weights, ROUTER for weight snapshots.
 
-Every received message is decoded and validated here; what fails is counted per kind and
-logged once per kind, so nothing malformed reaches the optimizer and no loss goes uncounted.
+Every received message is decoded and validated here (`wire.decode` with the configuration's
+T, N and sizes pinned, then the actor id); what fails is counted under `rejected/<kind>` and
+logged once per kind, and nothing raised while accepting a message ever leaves `receive`
+(`rejected/internal` counts our own bugs). Nothing malformed reaches the optimizer.
+
+Loss accounting: each actor numbers its unrolls (`UnrollMsg.seq`, durable across restarts with
+`actors/seq_ledger.py`). A number skipped by an unroll, or covered by a heartbeat's `seq` but
+never received, is a lost unroll: `seq_gap_unrolls`. At stop, `drain` reads the socket until
+every actor's final heartbeat arrived (or it stays quiet): what arrives is counted, and the final
+heartbeat's `seq` exposes the tail an actor numbered but the learner never got.
 """
 
 from __future__ import annotations
@@ -9,37 +17,52 @@ from __future__ import annotations
 import collections
 import logging
 import time
+from collections.abc import Callable
 
-import numpy as np
 import zmq
 
 from common import sockets, wire
+from common.curve import RefusalCounter, RunKeys
 from common.rpc import RouterServer
 
 log = logging.getLogger(__name__)
 
 
 class LearnerTransport:
-    def __init__(self, host: str, obs_dim: int, act_dim: int, n_params: int, port_base: int = 0):
-        """`port_base` 0 binds free ports; else unrolls on port_base, weights PUB on +1, snapshots on +2."""
+    def __init__(self, host: str, obs_dim: int, act_dim: int, n_params: int, port_base: int = 0, *,
+                 unroll_length: int, envs_per_actor: int, num_actors: int, keys: RunKeys | None = None):
+        """`port_base` 0 binds free ports; else unrolls on port_base, weights PUB on +1, snapshots on +2.
+
+        An unroll must be `[unroll_length, envs_per_actor, ...]` with these obs/act/param sizes,
+        and come (like a heartbeat) from an actor id in `[0, num_actors)`: anything else is a
+        counted rejection, never a new actor in the health counters. `keys`: the run's CURVE
+        keys; with them every socket admits only this run's clients, and a peer the handshake
+        refuses is counted as `rejected/auth_*` (`common.curve`)."""
         addr = lambda i: f"tcp://{host}:{port_base + i}" if port_base else f"tcp://{host}"  # noqa: E731
-        self.pull, unrolls = sockets.bind_unroll_pull(addr(0))
-        self.pub, weights_pub = sockets.bind_weights_pub(addr(1))
-        router, weights_router = sockets.bind_router(addr(2))
+        self.pull, unrolls = sockets.bind_unroll_pull(addr(0), keys)
+        self.pub, weights_pub = sockets.bind_weights_pub(addr(1), keys)
+        router, weights_router = sockets.bind_router(addr(2), keys)
+        self.refusals = [RefusalCounter(s) for s in (self.pull, self.pub)] if keys is not None else []
+        """Handshakes refused on the PULL and PUB sockets (the ROUTER's are in `snapshots`)."""
         self.endpoints = {"unrolls": unrolls, "weights_pub": weights_pub, "weights_router": weights_router}
         self.snapshots = RouterServer(router, self._on_request, name="weights")
-        self.dims = (obs_dim, act_dim, n_params)
+        self.dims = {"T": unroll_length, "N": envs_per_actor, "obs_dim": obs_dim, "act_dim": act_dim, "n_params": n_params}
+        """Shape names of `UnrollMsg` pinned to the configuration (see `wire.decode`)."""
+        self.num_actors = num_actors
         self.current: wire.WeightsMsg | None = None
         self.counters: collections.Counter[str] = collections.Counter()
         self.last_seq: dict[int, int] = {}
+        """Highest unroll sequence number received (or announced by a heartbeat) per actor."""
         self.resumed = False
-        """Set by `load_state_dict`: each actor's first unroll sets its baseline, not seq 0."""
-        """Highest unroll sequence number received per actor (kept across learner restarts)."""
+        """Set by `load_state_dict`: each actor's first message sets its baseline, not seq 0."""
         self.received: collections.Counter[int] = collections.Counter()
         """Valid unrolls received per actor."""
         self.sampler_outages: dict[int, int] = {}
         """Latest cumulative sampler-outage count each actor reported."""
         self.last_seen: dict[int, float] = {}
+        """Known actors only: a message from an id outside the configuration is rejected first."""
+        self.finals: dict[int, int] = {}
+        """Actors that said they stopped (final heartbeat) and the last seq they numbered."""
         self.bytes_received = 0
         self.poller = zmq.Poller()
         self.poller.register(self.pull, zmq.POLLIN)
@@ -48,6 +71,9 @@ class LearnerTransport:
     def _on_request(self, msg) -> wire.WeightsMsg | wire.ErrorMsg:
         if not isinstance(msg, wire.WeightsRequestMsg):
             raise wire.WireError(f"the weights service answers weights_request only, not {type(msg).KIND}", "unknown_kind")
+        if msg.actor_id >= self.num_actors:
+            raise wire.WireError(f"weights_request from actor {msg.actor_id}; this run has actors "
+                                 f"0..{self.num_actors - 1}", "unknown_actor")
         if self.current is None:
             return wire.ErrorMsg(reason="no weights published yet; ask again", error_kind="not_ready")
         self.counters["snapshots_served"] += 1
@@ -62,76 +88,134 @@ class LearnerTransport:
             log.warning("rejected an unroll-channel message (%s): %s", kind, reason)
         self.counters[f"rejected/{kind}"] += 1
 
-    def _validate_shapes(self, m: wire.UnrollMsg) -> None:
-        obs_dim, act_dim, n_params = self.dims
-        if m.obs.ndim != 3 or m.obs.shape[2] != obs_dim:
-            raise wire.WireError(f"unroll obs shape {m.obs.shape}, expected [T, N, {obs_dim}]", "bad_shape")
-        T, N = m.obs.shape[:2]
-        expected = {
-            "next_obs": (T, N, obs_dim), "actions": (T, N, act_dim), "logp": (T, N), "rewards": (T, N),
-            "terminated": (T, N), "truncated": (T, N), "params": (T, N, n_params),
-        }
-        for name, shape in expected.items():
-            if getattr(m, name).shape != shape:
-                raise wire.WireError(f"unroll {name} shape {getattr(m, name).shape}, expected {shape}", "bad_shape")
-        if m.terminated.dtype != np.bool_ or m.truncated.dtype != np.bool_:
-            raise wire.WireError("unroll terminated/truncated must be bool arrays", "bad_shape")
+    def rejected(self) -> int:
+        """Unroll-channel messages refused so far (every kind)."""
+        return sum(v for k, v in self.counters.items() if k.startswith("rejected/"))
 
     def receive(self, timeout_ms: int, policy_version: int, max_policy_lag: int) -> list[wire.UnrollMsg]:
         """Serve snapshot requests and return the valid, fresh unrolls that arrive within
-        `timeout_ms` (returns as soon as something arrived)."""
+        `timeout_ms` (returns as soon as something arrived). Never raises over a peer's input."""
         out: list[wire.UnrollMsg] = []
+        for refusals in self.refusals:
+            refusals.poll(self.counters, prefix="rejected/")
         events = dict(self.poller.poll(timeout_ms))
         while events:
             if self.snapshots.sock in events:
                 self.snapshots.serve_pending(0)
             if self.pull in events:
-                for _ in range(256):
-                    try:
-                        frames = self.pull.recv_multipart(zmq.NOBLOCK, copy=False)
-                    except zmq.Again:
-                        break
-                    msg = self._accept(frames, policy_version, max_policy_lag)
-                    if msg is not None:
-                        out.append(msg)
+                out += self._read(policy_version, max_policy_lag, 256)
             events = dict(self.poller.poll(0))
             if out:
                 break
         return out
 
+    def _read(self, policy_version: int, max_policy_lag: int, limit: int) -> list[wire.UnrollMsg]:
+        out = []
+        for _ in range(limit):
+            try:
+                frames = self.pull.recv_multipart(zmq.NOBLOCK, copy=False)
+            except zmq.Again:
+                break
+            msg = self._accept(frames, policy_version, max_policy_lag)
+            if msg is not None:
+                out.append(msg)
+        return out
+
     def _accept(self, frames, policy_version: int, max_policy_lag: int) -> wire.UnrollMsg | None:
-        self.bytes_received += sum(len(f.buffer) for f in frames)
+        """One message from the unroll channel: the fresh unroll, or None (a heartbeat, a stale
+        unroll, or a rejection: each counted). Raises nothing."""
         try:
-            msg = wire.decode(frames, expect=(wire.UnrollMsg, wire.HeartbeatMsg))
-            wire.check_finite(msg)
-            if isinstance(msg, wire.UnrollMsg):
-                self._validate_shapes(msg)
+            self.bytes_received += sum(len(f.buffer) for f in frames)
+            msg = wire.decode(frames, expect=(wire.UnrollMsg, wire.HeartbeatMsg), dims=self.dims)
+            if msg.actor_id >= self.num_actors:
+                raise wire.WireError(f"{type(msg).KIND} from actor {msg.actor_id}; this run has actors "
+                                     f"0..{self.num_actors - 1}", "unknown_actor")
+            return self._book(msg, policy_version, max_policy_lag)
         except wire.WireError as exc:
             self._reject(exc.kind, str(exc))
-            return None
+        except Exception:  # a bug of ours must not let a peer stop training: counted, logged once
+            if self.counters["rejected/internal"] == 0:
+                log.exception("internal error while accepting an unroll-channel message")
+            self.counters["rejected/internal"] += 1
+        return None
+
+    def _advance(self, actor_id: int, seq: int, unroll: bool) -> None:
+        """Book sequence number `seq` of an actor: an unroll numbered `seq` arrived, or (a
+        heartbeat) every number up to `seq` was sent before it on this pipe. Numbers that should
+        have arrived by now and did not are lost unrolls (`seq_gap_unrolls`).
+
+        Numbering starts at 0 and, with a sequence ledger, survives actor restarts; an actor
+        without a ledger restarts from 0, which is counted as `seq_restarts`, not as a loss."""
+        if actor_id not in self.last_seq and self.resumed:
+            self.last_seq[actor_id] = seq - 1 if unroll else seq  # a resumed learner's baseline
+        previous = self.last_seq.get(actor_id, -1)
+        due = seq - 1 if unroll else seq
+        if due > previous:
+            gap = due - previous
+            if self.counters["seq_gap_unrolls"] == 0:
+                log.warning("actor %d: %d unroll(s) lost (seq %d -> %d)", actor_id, gap, previous, seq)
+            self.counters["seq_gap_unrolls"] += gap
+        if unroll:
+            if seq <= previous:
+                self.counters["seq_restarts"] += 1
+            self.last_seq[actor_id] = seq
+        elif seq > previous:
+            self.last_seq[actor_id] = seq
+
+    def _book(self, msg, policy_version: int, max_policy_lag: int) -> wire.UnrollMsg | None:
+        if isinstance(msg, wire.UnrollMsg) and msg.policy_version > policy_version:
+            raise wire.WireError(f"unroll of policy version {msg.policy_version}, newer than the learner's "
+                                 f"{policy_version}", "out_of_range")
         self.last_seen[msg.actor_id] = time.monotonic()
         if isinstance(msg, wire.HeartbeatMsg):
             self.counters["heartbeats"] += 1
+            # A heartbeat travels on the unrolls' pipe, after them: every number up to its seq
+            # that has not arrived never will.
+            self._advance(msg.actor_id, msg.seq, unroll=False)
+            if msg.final:
+                self.finals[msg.actor_id] = msg.seq
             return None
-        # Numbering starts at 0 and, with a sequence ledger, survives actor restarts: any
-        # number skipped is an unroll that was sent (or queued) and never arrived.
-        previous = self.last_seq.get(msg.actor_id, msg.seq - 1 if self.resumed else -1)
-        if msg.seq > previous + 1:
-            gap = msg.seq - previous - 1
-            if self.counters["seq_gap_unrolls"] == 0:
-                log.warning("actor %d skipped %d unroll(s) (seq %d -> %d)", msg.actor_id, gap, previous, msg.seq)
-            self.counters["seq_gap_unrolls"] += gap
-        elif msg.seq <= previous:
-            self.counters["seq_restarts"] += 1  # an actor without a ledger restarted from 0
-        self.last_seq[msg.actor_id] = msg.seq
+        self._advance(msg.actor_id, msg.seq, unroll=True)
         self.received[msg.actor_id] += 1
         self.sampler_outages[msg.actor_id] = msg.sampler_outages
         self.counters["unrolls_received"] += 1
         self.counters["steps_received"] += int(msg.rewards.size)
-        if msg.policy_version < 0 or policy_version - msg.policy_version > max_policy_lag:
+        if policy_version - msg.policy_version > max_policy_lag:
             self.counters["stale_unrolls"] += 1
             return None
         return msg
+
+    def drain(self, policy_version: int, max_policy_lag: int, expect_final: set[int],
+              quiet_s: float = 5.0, max_s: float = 30.0, between: Callable[[], None] | None = None) -> int:
+        """At stop, after the actors were told to stop: read the unroll channel until every actor
+        in `expect_final` sent its final heartbeat, or nothing arrived for `quiet_s`, or `max_s`
+        passed. Everything read is booked as usual (gaps, rejections); fresh unrolls are counted
+        as `drained_at_stop` and `unused_at_stop`. `between()` runs between reads (serial mode
+        sends its actors' final heartbeats there). Returns the number of fresh unrolls drained."""
+        start = last = time.monotonic()
+        drained = 0
+        while not expect_final <= self.finals.keys():
+            now = time.monotonic()
+            if now - last > quiet_s or now - start > max_s:
+                missing = sorted(expect_final - self.finals.keys())
+                log.warning("drain at stop: no final heartbeat from actor(s) %s after %.1f s", missing, now - start)
+                break
+            if between is not None:
+                between()
+            if self.pull.poll(50, zmq.POLLIN):
+                before = self.counters.total()
+                got = self._read(policy_version, max_policy_lag, 256)
+                drained += len(got)
+                if self.counters.total() != before:
+                    last = time.monotonic()
+            self.snapshots.serve_pending(0)
+        self.counters["drained_at_stop"] += drained
+        self.counters["unused_at_stop"] += drained
+        return drained
+
+    def lost(self) -> int:
+        """Unrolls numbered by an actor that never arrived (counted sequence gaps)."""
+        return self.counters["seq_gap_unrolls"]
 
     def state_dict(self) -> dict:
         """What a resumed learner needs to keep its counters where it left off."""
@@ -143,12 +227,15 @@ class LearnerTransport:
     def load_state_dict(self, state: dict) -> None:
         """Counters only. The checkpoint's `last_seq` is as old as the checkpoint: the unrolls
         received between it and the stop were trained on, not lost, and the actors' ledgers
-        number on from them, so each actor's first unroll after a resume is the new baseline
+        number on from them, so each actor's first message after a resume is the new baseline
         (otherwise every resume counted them as gaps: "gaps 49" after 9 resumes)."""
         self.last_seq = {}
         self.resumed = True
         self.counters.update(state["counters"])
 
     def close(self) -> None:
-        for sock in (self.pull, self.pub, self.snapshots.sock):
+        for refusals in self.refusals:
+            refusals.close()
+        for sock in (self.pull, self.pub):
             sock.close(linger=0)
+        self.snapshots.close()

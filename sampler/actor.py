@@ -19,20 +19,22 @@ import dataclasses
 import threading
 from typing import Sequence
 
+from common.curve import RunKeys
 from common.params import ParamSpace
 from sampler.config import SamplerConfig
 from sampler.service import SamplerService
 
 
 def start_in_thread(config: SamplerConfig, space: ParamSpace, clips: Sequence[tuple[str, str]] | None = None,
-                    address: str | None = None) -> tuple[SamplerService, threading.Thread, threading.Event]:
+                    address: str | None = None, keys: RunKeys | None = None,
+                    ) -> tuple[SamplerService, threading.Thread, threading.Event]:
     """Bind the service here and serve it on a daemon thread. Stop with `stop_event.set()` then
     `thread.join()`; the thread closes the socket on its way out.
 
     NOTE: the socket is created on the calling thread and used only by the serving thread from
     then on; ZeroMQ allows moving a socket across threads behind a memory barrier, which
     `Thread.start` provides."""
-    service = SamplerService(config, space, clips, address=address)
+    service = SamplerService(config, space, clips, address=address, keys=keys)
     stop_event = threading.Event()
     thread = threading.Thread(target=service.serve, args=(stop_event,), name="sampler-service", daemon=True)
     thread.start()
@@ -45,12 +47,13 @@ class SamplerActor:
     `config.host == "auto"` binds this node's IP (`ray.util.get_node_ip_address()`), which
     clients on other nodes can reach; the default 127.0.0.1 serves this machine only."""
 
-    def __init__(self, config: SamplerConfig, space: ParamSpace, clips: Sequence[tuple[str, str]] | None = None):
+    def __init__(self, config: SamplerConfig, space: ParamSpace, clips: Sequence[tuple[str, str]] | None = None,
+                 keys: RunKeys | None = None):
         if config.host == "auto":
             import ray  # only a Ray actor resolves "auto"; serial mode never needs ray
 
             config = dataclasses.replace(config, host=ray.util.get_node_ip_address())
-        self.service, self._thread, self._stop = start_in_thread(config, space, clips)
+        self.service, self._thread, self._stop = start_in_thread(config, space, clips, keys=keys)
 
     def endpoint(self) -> str:
         return self.service.endpoint

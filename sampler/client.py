@@ -7,12 +7,14 @@ An `ErrorMsg` reply (bad input) raises `common.wire.WireError` carrying the serv
 
 from __future__ import annotations
 
+import secrets
 from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
 
 from common import wire
+from common.curve import ACTOR, RunKeys
 from common.rpc import RpcClient, ServiceUnavailable
 
 __all__ = ["Draws", "SamplerClient", "ServiceUnavailable"]
@@ -32,11 +34,14 @@ class SamplerClient:
     """One client per thread (ZeroMQ sockets are not thread-safe)."""
 
     def __init__(self, endpoint: str | Callable[[], str], timeout_s: float = 2.0, retries: int = 3,
-                 client_id: int = 0):
+                 client_id: int = 0, keys: RunKeys | None = None, role: str = ACTOR):
         """`endpoint` may be a callable returning the current endpoint (looked up again on
-        every reconnect, e.g. from a restarted Ray actor)."""
-        self.rpc = RpcClient(endpoint, timeout_s=timeout_s, retries=retries)
+        every reconnect, e.g. from a restarted Ray actor). `keys`, `role`: the run's CURVE keys
+        and this client's role (only the learner may report values, tick, or get and set state)."""
+        self.rpc = RpcClient(endpoint, timeout_s=timeout_s, retries=retries, keys=keys, role=role)
         self.client_id = client_id
+        self._nonce = secrets.token_hex(8)
+        self._reports = 0
 
     def draw(self, n: int) -> Draws:
         reply = self.rpc.call(wire.DrawRequestMsg(n=int(n), client_id=self.client_id), wire.DrawReplyMsg)
@@ -44,9 +49,15 @@ class SamplerClient:
                      buffer_generation=int(reply.buffer_generation))
 
     def report(self, params: np.ndarray, values: np.ndarray) -> None:
-        """Send (s_b `[m, d]`, V(s) `[m]`) pairs for the marginal value fit."""
+        """Send (s_b `[m, d]`, V(s) `[m]`) pairs for the marginal value fit.
+
+        Idempotent: the report carries an id unique to this call (this client's random nonce
+        and a counter), and every retry of the call resends it, so the service stores the pairs
+        once even when a reply was lost and the request sent again."""
+        self._reports += 1
         msg = wire.ValueReportMsg(params=np.asarray(params, dtype=np.float32),
-                                  values=np.asarray(values, dtype=np.float32).reshape(-1))
+                                  values=np.asarray(values, dtype=np.float32).reshape(-1),
+                                  report_id=f"{self._nonce}-{self._reports}")
         self.rpc.call(msg, wire.OkMsg)
 
     def tick(self, iteration: int) -> dict[str, float]:

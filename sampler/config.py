@@ -3,9 +3,20 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
+
+from common.config_limits import (
+    Limit,
+    above,
+    at_least,
+    between,
+    check_limits,
+    validated,
+)
 
 
 @dataclass(frozen=True)
+@validated
 class SamplerConfig:
     """Adaptive sampling of task/shape parameters (Won & Lee 2019, Sec. 4.2 and Algorithm 1) and
     the hierarchical motion balancer (UniCon 2020, Sec. 5.1). Defaults are the paper's where it
@@ -53,26 +64,21 @@ class SamplerConfig:
     port: int = 0
     """TCP port of the ROUTER; 0 = a free port chosen at bind time."""
 
-    def __post_init__(self) -> None:
-        checks = [
-            ("k", self.k >= 0, "k >= 0"),
-            ("p_mcmc", self.p_mcmc >= 1, ">= 1"),
-            ("n_mcmc", self.n_mcmc >= 1, ">= 1"),
-            ("n_chains", self.n_chains >= 1, ">= 1"),
-            ("burn_in", self.burn_in >= 0, ">= 0"),
-            ("thin", self.thin >= 1, ">= 1"),
-            ("vbar_floor", self.vbar_floor > 0, "> 0"),
-            ("vm_lr", self.vm_lr > 0, "> 0"),
-            ("vbar_rate", 0 < self.vbar_rate <= 1, "in (0, 1]"),
-            ("vm_minibatch", self.vm_minibatch >= 1, ">= 1"),
-            ("vm_fit_steps", self.vm_fit_steps >= 0, ">= 0"),
-            ("port", 0 <= self.port < 65536, "in [0, 65535]"),
-        ]
-        for name, ok, allowed in checks:
-            if not ok:
-                raise ValueError(f"SamplerConfig.{name} = {getattr(self, name)!r} is not allowed; use {allowed}")
-        if not self.vm_hidden or any(h < 1 for h in self.vm_hidden):
-            raise ValueError(f"SamplerConfig.vm_hidden = {self.vm_hidden!r}; give one or more positive sizes")
+    FLAG_PREFIX: ClassVar[str] = "sampler"
+    LIMITS: ClassVar[dict[str, Limit]] = {
+        "k": at_least(0, False), "p_mcmc": at_least(1), "n_mcmc": at_least(1), "n_chains": at_least(1), "burn_in": at_least(0),
+        "thin": at_least(1), "vbar_floor": above(0), "vm_hidden": at_least(1), "vm_lr": above(0),
+        "vbar_rate": between(0, 1, lo_open=True), "vm_fit_steps": at_least(0), "vm_minibatch": at_least(1),
+        "max_pending_pairs": at_least(1), "max_draw": at_least(1), "probe_points": at_least(1), "seed": at_least(0),
+        "port": between(0, 65535, integer=True),
+    }
+    """Allowed values of the numeric fields (`common.config_limits`)."""
+
+    def validate(self) -> None:
+        """ValueError naming the first value outside what is allowed."""
+        check_limits(self)
+        if not self.vm_hidden:
+            raise ValueError(f"--sampler.vm-hidden = {self.vm_hidden!r}: give one or more layer sizes")
 
     @property
     def mh_steps(self) -> int:

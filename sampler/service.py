@@ -2,18 +2,27 @@
 
 Requests and their replies (messages of `common.wire`):
     DrawRequestMsg   -> DrawReplyMsg     n draws from the buffer (+ clip ids)
-    ValueReportMsg   -> OkMsg            (params, V) pairs for the next Vm fit
-    TickMsg          -> StatsReplyMsg    fit Vm, maybe refill; stats after the tick
+    ValueReportMsg   -> OkMsg            (params, V) pairs for the next Vm fit; a resend with the
+                                         same `report_id` is stored once (`reports/duplicates`)
+    TickMsg          -> StatsReplyMsg    fit Vm, maybe refill; stats after the tick (a repeated
+                                         iteration refits nothing and refills at most once)
     StatsRequestMsg  -> StatsReplyMsg
     StateRequestMsg  -> StateMsg         the whole state, for the learner's checkpoint
-    StateMsg         -> OkMsg            restore that state
+    StateMsg         -> OkMsg            restore that state: loaded into a copy and checked first,
+                                         so a bad state is refused whole and changes nothing
     anything else    -> ErrorMsg         counted per kind in `requests/rejected/<kind>`; serving goes on
+
+Every request is checked by `wire.decode` against its declared types and ranges (with
+`n_params` pinned to this space), then by the sampler (draw sizes, parameter bounds). A refusal
+is an `ErrorMsg` and a count; the service keeps answering.
 
 The socket is used by one thread only (the one running `serve`), so the sampler needs no lock.
 """
 
 from __future__ import annotations
 
+import collections
+import copy
 import logging
 import threading
 import time
@@ -23,6 +32,7 @@ import numpy as np
 import zmq
 
 from common import sockets, wire
+from common.curve import LEARNER, RunKeys
 from common.params import ParamSpace
 from common.rpc import RouterServer
 from sampler.config import SamplerConfig
@@ -43,7 +53,7 @@ def bind_address(config: SamplerConfig) -> str:
     return f"tcp://{config.host}" if config.port == 0 else f"tcp://{config.host}:{config.port}"
 
 
-def _bind(address: str, timeout_s: float = 5.0) -> tuple[zmq.Socket, str]:
+def _bind(address: str, keys: RunKeys | None = None, timeout_s: float = 5.0) -> tuple[zmq.Socket, str]:
     """Bind, retrying while the port is still held by a just-closed socket (a restart in place).
 
     NOTE: libzmq closes sockets asynchronously in its I/O thread, so re-binding the port of a
@@ -51,24 +61,60 @@ def _bind(address: str, timeout_s: float = 5.0) -> tuple[zmq.Socket, str]:
     deadline = time.monotonic() + timeout_s
     while True:
         try:
-            return sockets.bind_router(address)
+            return sockets.bind_router(address, keys)
         except zmq.ZMQError as exc:
             if exc.errno != zmq.EADDRINUSE or time.monotonic() > deadline:
                 raise RuntimeError(f"sampler cannot bind {address}: {exc}; choose another port or host") from exc
             time.sleep(0.05)
 
 
+LEARNER_ONLY = (wire.ValueReportMsg, wire.TickMsg, wire.StateMsg, wire.StateRequestMsg)
+"""Requests that change or read out the sampler's state: taken only from the learner's key
+(an actor, or anything holding an actor's key, may draw and read stats)."""
+
+REPORT_IDS_KEPT = 4096
+"""Report ids remembered for deduplication (a retry follows its first try within seconds)."""
+
+
+def _check_restored(s: ShapeSampler) -> None:
+    """ValueError if a just-restored state could not serve: what `load_state_dict` takes as given
+    (an index past the draw order would make `draw` loop forever)."""
+    n = len(s.buffer)
+    if s.buffer.ndim != 2 or n < 1 or not np.isfinite(s.buffer).all():
+        raise ValueError(f"sampler state buffer of shape {s.buffer.shape}: expected [n >= 1, {s.space.dim}], finite")
+    if s._order.shape != (n,) or not np.array_equal(np.sort(s._order), np.arange(n)):
+        raise ValueError(f"sampler state order is not a permutation of the {n} buffer rows")
+    if not 0 <= s._cursor <= n:
+        raise ValueError(f"sampler state cursor = {s._cursor}; allowed: [0, {n}]")
+    if min(s.generation, s.draws_served, s.last_refill_iteration, s.last_tick + 1) < 0:
+        raise ValueError("sampler state counters must not be negative")
+    pending = [np.asarray(a) for a in (*s._pending_params, *s._pending_values)]
+    if not all(np.isfinite(a).all() for a in pending):
+        raise ValueError("sampler state pending pairs hold NaN or Inf")
+    vm = s.vm
+    numbers = [vm.mu, vm.sigma, vm.vbar, *(float(p.detach().abs().max()) for p in vm.net.parameters())]
+    if not np.isfinite(numbers).all() or not np.isfinite(vm.probe).all() or vm.sigma <= 0:
+        raise ValueError("sampler state Vm holds NaN, Inf or a non-positive scale")
+
+
 class SamplerService:
     """Owns a bound ROUTER and a `ShapeSampler`; `serve` answers until its stop event is set."""
 
     def __init__(self, config: SamplerConfig, space: ParamSpace,
-                 clips: Sequence[tuple[str, str]] | None = None, address: str | None = None):
+                 clips: Sequence[tuple[str, str]] | None = None, address: str | None = None,
+                 keys: RunKeys | None = None):
         """`address` overrides the config's host/port (e.g. `tcp://127.0.0.1:5555` to restart
-        a service where its clients already look)."""
+        a service where its clients already look). `keys`: the run's CURVE keys as the sampler
+        holds them (`RunKeys.for_sampler`): only this run's clients connect, and only the
+        learner may change the sampler's state (`LEARNER_ONLY`)."""
         self.config = config
         self.sampler = ShapeSampler(config, space, clips)
-        sock, self.endpoint = _bind(address or bind_address(config))
-        self.server = RouterServer(sock, self._handle, "sampler")
+        self.reports: collections.OrderedDict[str, int] = collections.OrderedDict()
+        """The `report_id`s of the last REPORT_IDS_KEPT stored reports and their pair counts."""
+        self.duplicate_reports = 0
+        sock, self.endpoint = _bind(address or bind_address(config), keys)
+        self.server = RouterServer(sock, self._handle, "sampler", dims={"n_params": space.dim},
+                                   roles={kind: frozenset({LEARNER}) for kind in LEARNER_ONLY})
         if self.sampler.balancer is not None:
             log.info("sampler: motion balancer over %d clips:\n%s", len(self.sampler.balancer.clip_ids),
                      self.sampler.balancer.table())
@@ -90,11 +136,17 @@ class SamplerService:
             return wire.DrawReplyMsg(params=params.astype(np.float32), clip_ids=clips,
                                      buffer_generation=s.generation)
         if isinstance(msg, wire.ValueReportMsg):
+            if msg.report_id and msg.report_id in self.reports:
+                # A retry whose first try was stored (the reply was lost): idempotent, like a tick.
+                self.duplicate_reports += 1
+                return wire.OkMsg(info=f"report {msg.report_id} already stored ({self.reports[msg.report_id]} pairs)")
             m = s.report(msg.params, msg.values)
+            if msg.report_id:
+                self.reports[msg.report_id] = m
+                while len(self.reports) > REPORT_IDS_KEPT:
+                    self.reports.popitem(last=False)
             return wire.OkMsg(info=f"stored {m} pairs")
         if isinstance(msg, wire.TickMsg):
-            if not isinstance(msg.iteration, int) or isinstance(msg.iteration, bool) or msg.iteration < 0:
-                raise ValueError(f"tick iteration = {msg.iteration!r}; allowed: an integer >= 0")
             s.tick(msg.iteration)
             return wire.StatsReplyMsg(stats=self.stats())
         if isinstance(msg, wire.StatsRequestMsg):
@@ -103,17 +155,24 @@ class SamplerService:
             state = s.state_dict()
             return wire.StateMsg(meta=state["meta"], arrays=state["arrays"])
         if isinstance(msg, wire.StateMsg):
+            restored = copy.deepcopy(s)  # NOTE: load_state_dict is not atomic: fill a copy, swap when sound
             try:
-                s.load_state_dict({"meta": msg.meta, "arrays": msg.arrays})
-            except (KeyError, TypeError) as exc:
-                raise ValueError(f"sampler state lacks or mistypes {exc}; send what StateRequestMsg returned") from None
-            return wire.OkMsg(info=f"restored generation {s.generation}")
+                restored.load_state_dict({"meta": msg.meta, "arrays": msg.arrays})
+                _check_restored(restored)
+            except ValueError:
+                raise
+            except Exception as exc:  # noqa: BLE001 - a missing key, a wrong type or shape: all the sender's
+                raise ValueError(f"sampler state lacks or mistypes something ({type(exc).__name__}: {exc}); "
+                                 "send what StateRequestMsg returned") from None
+            self.sampler = restored
+            return wire.OkMsg(info=f"restored generation {restored.generation}")
         raise wire.WireError(f"the sampler does not answer {type(msg).KIND!r} messages", "unknown_kind")
 
     def stats(self) -> dict[str, float]:
         """`ShapeSampler.stats()` plus `requests/served`, `requests/rejected` (all kinds) and
         `requests/rejected/<kind>` (malformed, version, unknown_kind, nonfinite, invalid, ...)."""
         out = self.sampler.stats()
+        out["reports/duplicates"] = float(self.duplicate_reports)
         out["requests/served"] = float(self.server.served)
         out["requests/rejected"] = float(sum(self.server.rejected.values()))
         for kind, count in sorted(self.server.rejected.items()):
@@ -133,5 +192,4 @@ class SamplerService:
             self.close()
 
     def close(self) -> None:
-        if not self.server.sock.closed:
-            self.server.sock.close(linger=0)
+        self.server.close()

@@ -209,7 +209,7 @@ class ShapeSampler:
             raise ValueError(f"sampler state is for parameters {meta['names']}, "
                              f"this sampler has {list(self.space.names)}")
         box_changed = self.vm.load_state(meta["vm"], {k[3:]: v for k, v in arrays.items() if k.startswith("vm/")})
-        # NOTE: a run may resume on another box (a curriculum stage, `--task.shape-box-scale`):
+        # NOTE: a run may resume on another box (a curriculum stage, `--task.body.shape-box-scale`):
         # Vm keeps its values (re-expressed for the new box) and pending shapes are moved into the
         # new box; the buffer is refilled at once below, since the old one covers only the old box.
         box = lambda a: np.clip(a.astype(np.float64).reshape(-1, self.space.dim), self.space.low_array, self.space.high_array)  # noqa: E731

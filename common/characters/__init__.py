@@ -9,9 +9,9 @@ Presets: humanoid (DeepMimic), biped (MASS 19 segments), lower_biped, quadruped,
 any MJCF with a free root as "mjcf:/path/to/file.xml". See character.py for the fields.
 """
 
-from common.characters.render import ensure_offscreen_gl
+from common.offscreen_gl import choose_offscreen_gl
 
-ensure_offscreen_gl()  # NOTE: must precede the first `import mujoco` to take effect.
+choose_offscreen_gl()  # NOTE: must precede the first `import mujoco` to take effect.
 
 from common.characters.character import DEFAULT_TIMESTEP_S, Character, CharacterFactory, list_presets, load_character
 from common.characters.errors import ShapeError

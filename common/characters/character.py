@@ -11,13 +11,14 @@ from __future__ import annotations
 import functools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import mujoco
 import numpy as np
 
 from common.characters.builder import FLOOR_NAME, BaseCharacter
 from common.characters.errors import ShapeError
-from common.characters.operator import BaseGeometry, apply_scales
+from common.characters.operator import BaseGeometry, apply_scales, unscalable
 from common.characters.pose_solve import PoseSolveConfig, solve_standing_pose
 from common.characters.presets import PRESETS
 from common.characters.shape_space import ShapeSpace
@@ -185,8 +186,9 @@ def list_presets() -> list[str]:
 
 
 def build_base(preset: str, timestep_s: float = DEFAULT_TIMESTEP_S) -> BaseCharacter:
-    """The unshaped base character B for a preset name or "mjcf:<path>" / "<path>.xml"."""
-    if preset.startswith("mjcf:") or preset.endswith(".xml"):
+    """The unshaped base character B for a preset name or "mjcf:<path>" / "<path>.xml" / the path
+    of any existing file (MuJoCo decides whether it is MJCF)."""
+    if preset.startswith("mjcf:") or preset.endswith(".xml") or (preset not in PRESETS and Path(preset).exists()):
         from common.characters.presets.mjcf import build as build_mjcf
 
         return build_mjcf(preset.removeprefix("mjcf:"), timestep_s)
@@ -251,8 +253,13 @@ class CharacterFactory:
 
 def reshape(spec: mujoco.MjSpec, base: BaseCharacter, geometry: BaseGeometry, space: ShapeSpace,
             values: np.ndarray) -> None:
-    """Apply F for validated `values` to `spec` in place (no compile)."""
+    """Apply F for validated `values` to `spec` in place (no compile). Raises ShapeError, before
+    changing anything, if the values would scale a body whose geoms F cannot rescale."""
     scales = space.segment_scales(values, base.parts, geometry.rest_rot)
+    fixed = unscalable(geometry, scales)
+    if fixed is not None:
+        raise ShapeError(f"{base.preset!r}: body {fixed[0]!r} carries a {fixed[1]} geom, which the shape operator "
+                         "cannot rescale; choose shape values that leave that body at scale 1")
     long_axis = {p.name: p.long_axis for p in base.parts}
     apply_scales(spec, geometry, scales, geometry.torque_scale(scales, long_axis))
 
@@ -261,7 +268,7 @@ def _compile(spec: mujoco.MjSpec, name: str) -> mujoco.MjModel:
     try:
         return spec.compile()
     except Exception as exc:  # MuJoCo raises a plain ValueError with its compiler message
-        raise ShapeError(f"character {name!r} does not compile: {exc}") from exc
+        raise ShapeError(f"character {name!r} does not compile: {' '.join(str(exc).split())}") from exc
 
 
 __all__ = ["Character", "CharacterFactory", "load_character", "list_presets", "build_base", "reshape", "FLOOR_NAME", "DEFAULT_TIMESTEP_S"]

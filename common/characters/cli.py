@@ -5,8 +5,8 @@ print its mass, height, leg lengths and DOF count, write its MJCF and a PNG of i
     morphmimic character humanoid --list
     morphmimic character path/to/file.xml --shape scale=1.3 --parameterization uniform --mjcf out.xml
 
-Rendering needs an offscreen OpenGL on a machine without a display: MUJOCO_GL=osmesa (or egl);
-this command picks osmesa itself when MUJOCO_GL is unset and there is no DISPLAY.
+Rendering needs an offscreen OpenGL on a machine without a display: MUJOCO_GL=egl (or osmesa);
+this command picks the one installed when MUJOCO_GL is unset and there is no DISPLAY.
 """
 
 from __future__ import annotations
@@ -28,9 +28,9 @@ def _parse_shape(text: str | None) -> dict[str, str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from common.characters.render import ensure_offscreen_gl
+    from common.offscreen_gl import choose_offscreen_gl
 
-    ensure_offscreen_gl()  # before mujoco is imported
+    choose_offscreen_gl()  # before mujoco is imported
     from common.characters import ShapeError, list_presets, load_character
     from common.characters.character import build_base
 
@@ -58,7 +58,8 @@ def main(argv: list[str] | None = None) -> int:
         print("leg_lengths_m " + (" ".join(f"{x:.4f}" for x in ch.leg_lengths_m) or "-"))
         print(f"dof {ch.dof}")
         if args.mjcf:
-            key = ch.spec.add_key(name="stand", qpos=list(ch.standing_qpos))
+            name = "" if any(k.name == "stand" for k in ch.spec.keys) else "stand"  # a user file may have one
+            key = ch.spec.add_key(name=name, qpos=list(ch.standing_qpos))
             try:
                 ch.spec.compile()
                 with open(args.mjcf, "w") as f:

@@ -115,7 +115,8 @@ class BaseGeometry:
 def apply_scales(spec: mujoco.MjSpec, base: BaseGeometry, scales: Mapping[str, np.ndarray],
                  torque_factor: float) -> None:
     """Write the shape given by per-body scales [3] into `spec` (in place; absolute values from
-    `base`, so calling it again with other scales is a clean re-shape)."""
+    `base`, so calling it again with other scales is a clean re-shape). Geoms F cannot rescale
+    keep their size: check `unscalable` first."""
     one = np.ones(3)
     for rec in base.bodies:
         s = np.asarray(scales.get(rec.name, one), dtype=float)
@@ -143,6 +144,16 @@ def apply_scales(spec: mujoco.MjSpec, base: BaseGeometry, scales: Mapping[str, n
                 rec.body.fullinertia = full * vol * cross
     for act, forcerange in base.actuators:
         act.forcerange = forcerange * torque_factor
+
+
+def unscalable(base: BaseGeometry, scales: Mapping[str, np.ndarray]) -> tuple[str, str] | None:
+    """(body, geom kind) of the first body that carries a geom F cannot rescale (a mesh or
+    height field, e.g. from a user's MJCF) yet would get a scale other than 1; None if none."""
+    for rec in base.bodies:
+        fixed = [g for g in rec.geoms if g.type not in _SCALABLE]
+        if fixed and not np.allclose(scales.get(rec.name, 1.0), 1.0):
+            return rec.name, mujoco.mjtGeom(fixed[0].type).name.removeprefix("mjGEOM_").lower()
+    return None
 
 
 def gains_follow_torque_limits(model: mujoco.MjModel, base_model: mujoco.MjModel) -> float:
@@ -173,8 +184,7 @@ def _scale_geom(g: _GeomRec, s: np.ndarray) -> None:
     if np.all(np.isfinite(g.fromto)) and not np.all(g.fromto == 0):
         geom.fromto = np.concatenate([s * g.fromto[:3], s * g.fromto[3:]])
     if g.type not in _SCALABLE:
-        # Planes, meshes and height fields keep their size (documented limitation).
-        return
+        return  # planes, meshes, height fields: see `unscalable`
     size = g.size.copy()
     if g.type == _SPHERE:
         if np.ptp(eff) < 1e-9:

@@ -1,37 +1,15 @@
 """Offscreen PNG of a character with MuJoCo's renderer.
 
-A machine without a display needs an offscreen GL: set `MUJOCO_GL=egl` (GPU or Mesa's EGL;
-packages libegl1 + libgl1-mesa-dri) or `MUJOCO_GL=osmesa` (software; package libosmesa6)
-before mujoco is imported. `ensure_offscreen_gl()` picks osmesa when nothing is set and there
-is no display.
+A machine without a display needs an offscreen GL: `MUJOCO_GL=egl` (GPU or Mesa's EGL;
+packages libegl1 + libgl1-mesa-dri) or `MUJOCO_GL=osmesa` (software; package libosmesa6),
+chosen before mujoco is imported; `common.offscreen_gl` picks whichever this machine has.
 """
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
-
-def ensure_offscreen_gl() -> None:
-    """Default MUJOCO_GL to osmesa on a machine without a display. Effective only before
-    mujoco is first imported (common.characters calls it on import); `_offscreen_context`
-    covers a process that imported mujoco earlier."""
-    if "MUJOCO_GL" not in os.environ and not os.environ.get("DISPLAY"):
-        os.environ["MUJOCO_GL"] = "osmesa"
-        os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
-
-
-def _offscreen_context() -> None:
-    """If mujoco chose GLFW (MUJOCO_GL unset at its import) but there is no display, switch
-    its renderer to OSMesa, which needs no display (package libosmesa6)."""
-    import mujoco.rendering.classic.gl_context as gl_context
-
-    if os.environ.get("DISPLAY") or getattr(gl_context, "_MUJOCO_GL", "x") not in ("", "glfw"):
-        return
-    os.environ["PYOPENGL_PLATFORM"] = "osmesa"
-    from mujoco.osmesa import GLContext
-
-    gl_context.GLContext = GLContext
+from common.offscreen_gl import choose_offscreen_gl, use_offscreen_context
 
 
 def render_png(ch, path: str | Path | None = None, data=None, width: int = 640, height: int = 480,
@@ -39,14 +17,14 @@ def render_png(ch, path: str | Path | None = None, data=None, width: int = 640, 
     """Render `ch` (a Character) at `data` (default: its standing pose) from a free camera that
     frames the whole body (elevation default: -15 deg, -35 for swimmers so their flat bodies
     show); write a PNG to `path` if given. Returns the image [H, W, 3] uint8."""
-    ensure_offscreen_gl()
+    choose_offscreen_gl()
     import imageio.v3 as iio
     import mujoco
     import numpy as np
 
     from common.characters.character import extent
 
-    _offscreen_context()
+    use_offscreen_context()
     model = ch.model
     data = ch.make_data() if data is None else data
     lo = np.array([extent(model, data, a)[0] for a in range(3)])

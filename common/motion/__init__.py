@@ -11,15 +11,13 @@ body shape, procedural gaits, the dataset manifest and its UniCon split.
 
 Modules: clip (format), quat, kinematics, import_deepmimic, bvh + import_bvh, cross_skeleton (a
 BVH of another skeleton onto the DeepMimic humanoid: rest-pose correction, feet planted on a
-drifting floor), qpos_map (clip -> a model's qpos), reference (CharacterMotion), retarget,
-procedural, manifest, check, view, cli.
+drifting floor), qpos_map (clip -> a model's qpos), reference (CharacterMotion), retarget (on
+root_height: where the feet are, the root-height rules; leg_solve: the leg pose solve), procedural, manifest, check, view, cli.
 """
 
-import os
+from common.offscreen_gl import choose_offscreen_gl
 
-# NOTE: MuJoCo picks its GL backend when first imported and `view` renders offscreen; EGL works
-# headless on these machines (osmesa did not). Only a default: an explicit MUJOCO_GL wins.
-os.environ.setdefault("MUJOCO_GL", "egl")
+choose_offscreen_gl()  # NOTE: before the first `import mujoco`: `view` renders offscreen.
 
 from common.motion.clip import Clip, load_clip  # noqa: E402
 from common.motion.errors import ClipError  # noqa: E402

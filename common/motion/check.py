@@ -15,7 +15,7 @@ import mujoco
 import numpy as np
 
 from common.motion.reference import CharacterMotion
-from common.motion.retarget import foot_heights
+from common.motion.root_height import foot_heights
 
 AIRBORNE_M = 0.02
 """Both feet higher than this: the frame counts as airborne (jump, flip) or floating."""

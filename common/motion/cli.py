@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from common.motion.errors import ClipError  # importing common.motion sets MUJOCO_GL=egl if unset
-from common.motion.retarget import ROOT_HEIGHT_RULES
+from common.motion.root_height import ROOT_HEIGHT_RULES
 
 
 def _parse_shape(items: list[str]) -> dict[str, float] | None:

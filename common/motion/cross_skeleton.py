@@ -40,7 +40,7 @@ near a *local* floor estimate (`floor_contacts`; a capture's floor may drift by 
 a clip, the MASS walk's by 2.7 cm), the root moves vertically so the highest foot in contact sits
 at z = 0 on every contact frame (each foot's contact height followed through its swing,
 `FloorConfig.root_height`), and a leg pose solve lifts any other foot out of the floor
-(retarget.py's root offsets and leg solve, reused).
+(root_height.py's root offsets and leg_solve.py's leg solve, reused).
 """
 
 from __future__ import annotations
@@ -189,7 +189,7 @@ def _target(character: str) -> _Target:
     import mujoco
 
     from common.characters import load_character
-    from common.motion.retarget import foot_heights
+    from common.motion.root_height import foot_heights
 
     ch = load_character(character)
     m = ch.model
@@ -414,7 +414,7 @@ class FloorConfig:
     max_drift_m_s: float = 0.2
     """The local floor's slope is bounded by this rise or fall per second (`local_floor`)."""
     root_height: str = "foot_tracks"
-    """Root-height rule of the planting (`retarget.root_offsets`): "foot_tracks" follows each
+    """Root-height rule of the planting (`root_height.root_offsets`): "foot_tracks" follows each
     foot's in-contact height through its swing, so the root does not jump when a foot joins the
     contact set at another height (measured on the MASS balance: largest root step between
     frames 4 mm, against 40 mm with "contact_set"; the feet as planted either way)."""
@@ -492,7 +492,8 @@ def plant_feet(clip: Clip, character: str = "humanoid", cfg: FloorConfig = Floor
     (the highest contact foot at 0, interpolated across flight) and leg pose solve (any foot
     below the floor lifted onto it). `extra["contact_frac"]` records each foot's contact share."""
     from common.motion.qpos_map import QposMap
-    from common.motion.retarget import ContactPhases, RetargetConfig, foot_heights, retarget_qpos
+    from common.motion.retarget import ContactPhases, RetargetConfig, retarget_qpos
+    from common.motion.root_height import foot_heights
 
     target = _target(character)
     model, feet = target.model, target.feet

@@ -9,17 +9,25 @@ divergence: bootstrap from the last observation). The two stay apart all the way
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any, ClassVar, Protocol
 
 import mujoco
 import numpy as np
 
+from common.config_limits import Limit, between, check_limits, validated
 from common.params import ParamSpace
+from common.tasks.body_config import BodyConfig
 from common.tasks.executor_config import ExecutorConfig
+from common.tasks.imitate_config import ImitateConfig
 
 
 @dataclass(frozen=True)
+@validated
 class TaskConfig:
+    """What every task shares (its name, rates and horizon) and one section per kind of task:
+    `body` (the simulated body and its shape variation), `imitate` (the shape tasks), `executor`
+    (UniCon's motion executor). A task reads only its own section and `body`."""
+
     name: str = "reach"
     """Registered task name (see `common.tasks.registry.TASKS`)."""
     control_hz: float = 25.0
@@ -28,59 +36,23 @@ class TaskConfig:
     """Physics steps per simulated second; must be a multiple of control_hz."""
     episode_s: float = 2.0
     """Time limit of an episode in simulated seconds (reached -> truncated)."""
-    character: str = ""
-    """Shape tasks: character preset (empty: the task name, e.g. `lower_biped`)."""
-    parameterization: str = "random"
-    """Shape tasks: the character's shape parameterization (`morphmimic character PRESET --list`);
-    "random" is Won & Lee's global b_g x per-segment b_l."""
-    clip_id: str = ""
-    """Shape tasks: reference clip (empty: the character's default, common.tasks.references)."""
-    vary_shape: bool = True
-    """Shape tasks: False pins the shape to the base character (the no-variation ablation); the
-    observation keeps the shape parameters so the policy evaluates on any shape."""
-    shape_box_scale: float = 1.0
-    """Shape tasks: train on the shape box shrunk toward the base shape by this factor in (0, 1]
-    (each bound moves to base + scale * (bound - base)); a curriculum is a run resumed at
-    growing scales (0.25, 0.5, 1). Evaluation uses the whole box unless given `--box-scale`."""
-    reward_normalization: bool = True
-    """Shape tasks: Won & Lee 2019 reward normalization (METHOD.md A, a reconstruction) on/off."""
-    task_params: tuple[str, ...] = ()
-    """Shape tasks: task parameters sampled per episode beside the shape: "speed", "heading"."""
-    speed_range: tuple[float, float] = (0.8, 1.2)
-    """Range of the "speed" task parameter: reference playback factor (target velocity scales)."""
-    heading_range_rad: tuple[float, float] = (-3.14159, 3.14159)
-    """Range of the "heading" task parameter: world yaw of the walking direction, rad."""
-    action_scale: float = 0.5
-    """Shape tasks: rad of PD-target deviation per unit action (target = q_ref + scale * a)."""
-    action_clip: float = 3.0
-    """Shape tasks: actions are clipped to [-action_clip, action_clip] before scaling."""
-    random_start_phase: bool = True
-    """Shape tasks: start each episode at a uniformly random phase of the clip (else at 0)."""
-    pd_gains_follow_torque: bool = False
-    """Shape tasks: scale each shape's PD gains and rotor inertia by the factor its torque limits
-    got (`common.characters.operator.gains_follow_torque_limits`), so small bodies are not
-    driven into their limits by the base's stiffness. False: the base's gains on every shape
-    (METHOD.md A). The shape presets turn it on (measured in `learner.presets`)."""
-    retarget_root_height: str = "contact_set"
-    """Walkers: how the retargeted reference's root height is chosen per frame
-    (`common.motion.retarget.root_offsets`): "contact_set" (the highest foot of each frame's
-    contact set on the floor) or "foot_tracks" (continuous across contact-set changes: a
-    quadruped whose diagonal pairs differ in length does not drop its root at each switch)."""
-    shin_contact_is_fall: bool = True
-    """Walkers: False lets the segment above each foot (a quadruped's shank) touch the floor
-    without it counting as a fall; the trunk, head and thighs still end the episode."""
-    max_root_deviation: float = 0.0
-    """Swimmers: terminate (as a fall) when the root is this many body lengths from the
-    reference root; 0 turns it off."""
-    reward_weights: tuple[float, ...] = ()
-    """Shape tasks: w1..w6 (empty: the character's row of METHOD.md A's table)."""
-    reward_sensitivities: tuple[float, ...] = (0.02, 0.5, 0.2, 0.2, 0.05, 0.1)
-    """Shape tasks: s1..s6 (METHOD.md A)."""
+    body: BodyConfig = BodyConfig()
+    """The body and its shape variation: `--task.body.parameterization leg_arm` etc."""
+    imitate: ImitateConfig = ImitateConfig()
+    """The shape tasks' settings (Won & Lee 2019, METHOD.md A): `--task.imitate.clip-id` etc."""
     executor: ExecutorConfig = ExecutorConfig()
     """The `executor` task's settings (UniCon 2020, METHOD.md B): `--task.executor.tau 2` etc."""
-    character_cache: int = 8
-    """Shape tasks: compiled characters + retargeted references kept per environment (LRU):
-    a repeated shape (the MCMC buffer repeats them) skips the 15-100 ms rebuild."""
+
+    FLAG_PREFIX: ClassVar[str] = "task"
+    LIMITS: ClassVar[dict[str, Limit]] = {
+        "control_hz": between(0, 10_000, lo_open=True), "sim_hz": between(0, 100_000, lo_open=True),
+        "episode_s": between(0, 1e6, lo_open=True),
+    }
+    """Allowed values of the numeric fields (`common.config_limits`)."""
+
+    def validate(self) -> None:
+        """ValueError naming the first value outside what is allowed."""
+        check_limits(self)
 
     @property
     def substeps(self) -> int:

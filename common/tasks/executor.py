@@ -156,15 +156,15 @@ class ExecutorEnv:
 
     @staticmethod
     def param_space(cfg: TaskConfig) -> ParamSpace:
-        """The humanoid's shape parameters (`cfg.parameterization`), pinned to the base shape."""
+        """The humanoid's shape parameters (`cfg.body.parameterization`), pinned to the base shape."""
         from common.tasks.references import base_character
 
-        shape = base_character(CHARACTER, 1.0 / cfg.sim_hz).base.spaces.get(cfg.parameterization)
+        shape = base_character(CHARACTER, 1.0 / cfg.sim_hz).base.spaces.get(cfg.body.parameterization)
         if shape is None:
             spaces = base_character(CHARACTER, 1.0 / cfg.sim_hz).base.spaces
-            raise ValueError(f"parameterization {cfg.parameterization!r} is not one of {sorted(spaces)}")
-        if cfg.vary_shape:
-            raise ValueError("the executor trains on the base humanoid for now: run it with --task.no-vary-shape "
+            raise ValueError(f"parameterization {cfg.body.parameterization!r} is not one of {sorted(spaces)}")
+        if cfg.body.vary_shape:
+            raise ValueError("the executor trains on the base humanoid for now: run it with --task.body.no-vary-shape "
                              "(shape variation over clips is the next step, see README)")
         d = tuple(float(x) for x in shape.default)
         return ParamSpace(tuple(shape.names), d, d, d, tuple(p.doc for p in shape.params))

@@ -4,12 +4,21 @@ the shape tasks' fields; `TaskConfig.executor` carries it (`--task.executor.tau 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import ClassVar, Literal
 
+from common.config_limits import (
+    Limit,
+    above,
+    at_least,
+    between,
+    check_limits,
+    validated,
+)
 from common.tasks.executor_rewards import TERMS
 
 
 @dataclass(frozen=True)
+@validated
 class ExecutorConfig:
     clips: tuple[str, ...] = ()
     """Clip ids to track (empty: the `split` of every clip that plays on the humanoid,
@@ -80,24 +89,23 @@ class ExecutorConfig:
     projectile: bool = False
     """Add a projectile body to the scene (robustness); parked out of the way until thrown."""
 
-    def __post_init__(self) -> None:
-        if self.tau < 1:
-            raise ValueError(f"--task.executor.tau = {self.tau} must be >= 1")
-        if not 0.0 <= self.alpha < 1.0:
-            raise ValueError(f"--task.executor.alpha = {self.alpha} must be in [0, 1)")
-        if self.catch_up_steps < 0:
-            raise ValueError(f"--task.executor.catch-up-steps = {self.catch_up_steps} must be >= 0")
-        if self.passive_damping < 0:
-            raise ValueError(f"--task.executor.passive-damping = {self.passive_damping} must be >= 0")
-        if not self.effort_scale > 0:
-            raise ValueError(f"--task.executor.effort-scale = {self.effort_scale} must be > 0")
-        if not 0.05 <= self.speed <= 10.0:
-            raise ValueError(f"--task.executor.speed = {self.speed} must be in [0.05, 10]")
+
+    FLAG_PREFIX: ClassVar[str] = "task.executor"
+    LIMITS: ClassVar[dict[str, Limit]] = {
+        "split_seed": at_least(0), "tau": between(1, 60, integer=True), "effort_scale": above(0),
+        "passive_damping": at_least(0, False), "pd_action_scale": above(0), "alpha": between(0, 1, hi_open=True),
+        "reward_weights": at_least(0, False), "reward_scales": above(0), "rsis_frames": at_least(0),
+        "rsis_translation_m": at_least(0, False), "rsis_velocity_std": at_least(0, False), "catch_up_steps": at_least(0),
+        "speed": between(0.05, 10),
+    }
+    """Allowed values of the numeric fields (`common.config_limits`)."""
+
+    def validate(self) -> None:
+        """ValueError naming the first value outside what is allowed."""
+        check_limits(self)
         lo, hi = self.rsis_frames
-        if not 0 <= lo <= hi:
-            raise ValueError(f"--task.executor.rsis-frames = {self.rsis_frames} must be 0 <= low <= high")
-        if self.rsis_translation_m < 0 or self.rsis_velocity_std < 0:
-            raise ValueError("--task.executor.rsis-translation-m and --task.executor.rsis-velocity-std must be >= 0")
+        if not lo <= hi:
+            raise ValueError(f"--task.executor.rsis-frames = {self.rsis_frames} must be low <= high")
         bad = [t for t in self.terminate_on if t not in TERMS]
         if bad or not self.terminate_on or len(set(self.terminate_on)) != len(self.terminate_on):
             raise ValueError(f"--task.executor.terminate-on = {self.terminate_on}: give one or more distinct terms of "

@@ -49,8 +49,8 @@ TASK_PARAMS = {
 
 
 def character_preset(cfg: TaskConfig) -> str:
-    """The character preset of a shape task: `cfg.character`, else the task name."""
-    preset = cfg.character or cfg.name
+    """The character preset of a shape task: `cfg.body.character`, else the task name."""
+    preset = cfg.body.character or cfg.name
     if preset not in references.DEFAULT_CLIPS:
         raise ValueError(f"task {cfg.name!r}: character {preset!r} has no shape task; choose one of {sorted(references.DEFAULT_CLIPS)}")
     return preset
@@ -61,56 +61,54 @@ class ImitateEnv:
 
     @staticmethod
     def param_space(cfg: TaskConfig) -> ParamSpace:
-        """Shape parameters of `cfg.parameterization` (collapsed to the base shape when
-        `cfg.vary_shape` is off), then the task parameters of `cfg.task_params`."""
-        shape = references.base_character(character_preset(cfg), 1.0 / cfg.sim_hz).base.spaces.get(cfg.parameterization)
+        """Shape parameters of `cfg.body.parameterization` (collapsed to the base shape when
+        `cfg.body.vary_shape` is off), then the task parameters of `cfg.imitate.task_params`."""
+        shape = references.base_character(character_preset(cfg), 1.0 / cfg.sim_hz).base.spaces.get(cfg.body.parameterization)
         if shape is None:
             spaces = references.base_character(character_preset(cfg), 1.0 / cfg.sim_hz).base.spaces
-            raise ValueError(f"parameterization {cfg.parameterization!r} is not one of {sorted(spaces)}")
+            raise ValueError(f"parameterization {cfg.body.parameterization!r} is not one of {sorted(spaces)}")
         names, low, high, doc = list(shape.names), list(shape.low), list(shape.high), [p.doc for p in shape.params]
-        if not cfg.vary_shape:
+        if not cfg.body.vary_shape:
             low, high = list(shape.default), list(shape.default)
-        elif cfg.shape_box_scale != 1.0:
-            if not 0.0 < cfg.shape_box_scale <= 1.0:
-                raise ValueError(f"shape_box_scale = {cfg.shape_box_scale} must be in (0, 1]")
-            d, k = np.asarray(shape.default), cfg.shape_box_scale
+        elif cfg.body.shape_box_scale != 1.0:
+            d, k = np.asarray(shape.default), cfg.body.shape_box_scale
             low, high = list(d + k * (np.asarray(low) - d)), list(d + k * (np.asarray(high) - d))
-        ranges = {"speed": cfg.speed_range, "heading": cfg.heading_range_rad}
-        for name in cfg.task_params:
+        ranges = {"speed": cfg.imitate.speed_range, "heading": cfg.imitate.heading_range_rad}
+        for name in cfg.imitate.task_params:
             if name not in TASK_PARAMS:
                 raise ValueError(f"task parameter {name!r} is not one of {sorted(TASK_PARAMS)}")
             names.append(name)
             low.append(float(ranges[name][0]))
             high.append(float(ranges[name][1]))
             doc.append(TASK_PARAMS[name][1])
-        default = list(shape.default) + [1.0 if n == "speed" else 0.0 for n in cfg.task_params]
+        default = list(shape.default) + [1.0 if n == "speed" else 0.0 for n in cfg.imitate.task_params]
         default = [min(max(d, lo), hi) for d, lo, hi in zip(default, low, high)]
         return ParamSpace(tuple(names), tuple(low), tuple(high), tuple(default), tuple(doc))
 
     @staticmethod
     def clips(cfg: TaskConfig) -> list[tuple[str, str]]:
         preset = character_preset(cfg)
-        clip_id = cfg.clip_id or references.DEFAULT_CLIPS[preset]
+        clip_id = cfg.imitate.clip_id or references.DEFAULT_CLIPS[preset]
         return [(clip_id, "root/locomotion")]
 
     def __init__(self, cfg: TaskConfig, seed: int = 0):
         self.cfg = cfg
         self.preset = character_preset(cfg)
-        self.clip_id = cfg.clip_id or references.DEFAULT_CLIPS[self.preset]
+        self.clip_id = cfg.imitate.clip_id or references.DEFAULT_CLIPS[self.preset]
         self.timestep_s = 1.0 / cfg.sim_hz
-        self.retarget = RetargetConfig(root_height=cfg.retarget_root_height)
+        self.retarget = RetargetConfig(root_height=cfg.imitate.retarget_root_height)
         self.space = self.param_space(cfg)
-        self.n_shape = len(self.space.names) - len(cfg.task_params)
+        self.n_shape = len(self.space.names) - len(cfg.imitate.task_params)
         self.rng = np.random.default_rng(seed)
         self.base = references.base_character(self.preset, self.timestep_s)
-        self.weights = tuple(cfg.reward_weights) or rewards.WEIGHTS[self.preset]
-        self.sigmas = tuple(cfg.reward_sensitivities)
+        self.weights = tuple(cfg.imitate.reward_weights) or rewards.WEIGHTS[self.preset]
+        self.sigmas = tuple(cfg.imitate.reward_sensitivities)
         base_clip, _ = references.task_clip(self.preset, self.clip_id, self.timestep_s)
         self.v0 = references.cycle_velocity(base_clip)
         self.tau_scale = self.base.model.actuator_forcerange[:, 1].copy()
         self._base_legs = self._legs(self.base)
         self._cache: collections.OrderedDict[bytes, tuple] = collections.OrderedDict()
-        self._factory = CharacterFactory(self.preset, cfg.parameterization, timestep_s=self.timestep_s)
+        self._factory = CharacterFactory(self.preset, cfg.body.parameterization, timestep_s=self.timestep_s)
         self.dt = 1.0 / cfg.control_hz
         self._look = [int(round(x * cfg.control_hz)) for x in LOOKAHEAD_S]
         self._load(self.space.default_array)
@@ -133,12 +131,12 @@ class ImitateEnv:
             motion = references.play(ch, self.clip_id, self.timestep_s, self.retarget)
             norm = rewards.Normalization.from_legs(self._legs(ch), self._base_legs, ch.mass_kg, self.base.mass_kg)
             self._cache[key] = (ch, motion, norm)
-            while len(self._cache) > max(1, self.cfg.character_cache):
+            while len(self._cache) > max(1, self.cfg.imitate.character_cache):
                 self._cache.popitem(last=False)
         self._set_character(*self._cache[key])
 
     def _gains(self, ch) -> None:
-        if self.cfg.pd_gains_follow_torque:
+        if self.cfg.imitate.pd_gains_follow_torque:
             gains_follow_torque_limits(ch.model, self.base.model)
 
     def _set_character(self, ch, motion, norm) -> None:
@@ -148,7 +146,7 @@ class ImitateEnv:
         self.root_body = self.model.body(ch.root_body).id
         self.ee_ids = np.array([self.model.body(b).id for b in ch.end_effector_bodies], dtype=np.int64)
         foot = {int(self.model.geom(g).bodyid[0]) for g in ch.foot_geoms}
-        if not self.cfg.shin_contact_is_fall:
+        if not self.cfg.imitate.shin_contact_is_fall:
             foot |= {int(self.model.body_parentid[b]) for b in foot}
         allowed = [b for b in range(self.model.nbody) if any(self._descends(b, f) for f in foot)]
         self.allowed_contact = np.zeros(self.model.nbody, bool)
@@ -219,13 +217,13 @@ class ImitateEnv:
             raise ValueError(f"clip {clip_id!r} is not this task's clip {self.clip_id!r}")
         params = self.space.validate(params)
         self._load(params)
-        phase = float(self.rng.uniform(0.0, self.motion.duration_s)) if self.cfg.random_start_phase else 0.0
+        phase = float(self.rng.uniform(0.0, self.motion.duration_s)) if self.cfg.imitate.random_start_phase else 0.0
         return self._reset_state(phase, params), {}
 
     def _reset_state(self, phase_s: float, params: np.ndarray | None = None) -> np.ndarray:
         params = self.space.default_array if params is None else params
         self.params = params.astype(np.float64)
-        task = dict(zip(self.cfg.task_params, params[self.n_shape :]))
+        task = dict(zip(self.cfg.imitate.task_params, params[self.n_shape :]))
         self.speed = float(task.get("speed", 1.0))
         yaw = float(task.get("heading", 0.0))
         self.rot = yaw_matrix(yaw)
@@ -258,7 +256,7 @@ class ImitateEnv:
         """v_target `[2]` m/s in the world: the clip's cycle velocity, scaled by speed, by the
         leg-length rule with normalization on (rewards.Normalization.target_speed)."""
         v = self.rot[:2, :2] @ self.v0 * self.speed
-        return v * (self.norm.leg_ratio * self.norm.asym if self.cfg.reward_normalization else 1.0)
+        return v * (self.norm.leg_ratio * self.norm.asym if self.cfg.imitate.reward_normalization else 1.0)
 
     def _body_frame(self) -> tuple[np.ndarray, np.ndarray]:
         """(heading frame `[3, 3]` of the root, end effectors relative to the root in it `[E, 3]`)
@@ -299,7 +297,7 @@ class ImitateEnv:
         balls = np.concatenate([[d.qpos[3:7]], d.qpos[self.layout.ball_qpos]])
         balls_ref = np.concatenate([[qref[3:7]], qref[self.layout.ball_qpos]])
         frame, ee = body_frame or self._body_frame()
-        norm = self.norm if self.cfg.reward_normalization else None
+        norm = self.norm if self.cfg.imitate.reward_normalization else None
         facing = frame[:2, 0]
         facing_ref = yaw_matrix(heading(quat_to_mat(qref[3:7])))[:2, 0]
         errors = {
@@ -318,9 +316,9 @@ class ImitateEnv:
         than `max_root_deviation` body lengths from the reference root."""
         d = self.data
         if self.character.is_swimmer:
-            if self.cfg.max_root_deviation <= 0:
+            if self.cfg.imitate.max_root_deviation <= 0:
                 return False
-            return float(np.linalg.norm(d.qpos[0:3] - self.ref_q[0][0:3])) > self.cfg.max_root_deviation * self.length_m
+            return float(np.linalg.norm(d.qpos[0:3] - self.ref_q[0][0:3])) > self.cfg.imitate.max_root_deviation * self.length_m
         for i in range(d.ncon):
             c = d.contact[i]
             b1, b2 = self.model.geom_bodyid[c.geom1], self.model.geom_bodyid[c.geom2]
@@ -340,8 +338,8 @@ class ImitateEnv:
         return sorted(names)
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
-        a = np.clip(np.nan_to_num(np.asarray(action, dtype=np.float64)), -self.cfg.action_clip, self.cfg.action_clip)
-        self.data.ctrl[:] = self.ref_joints[1] + self.cfg.action_scale * a
+        a = np.clip(np.nan_to_num(np.asarray(action, dtype=np.float64)), -self.cfg.imitate.action_clip, self.cfg.imitate.action_clip)
+        self.data.ctrl[:] = self.ref_joints[1] + self.cfg.imitate.action_scale * a
         diverged = step_physics(self.model, self.data, self.cfg.substeps)
         self.k += 1
         if diverged:

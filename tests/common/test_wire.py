@@ -129,3 +129,108 @@ def test_nonfinite_arrays_are_caught():
     with pytest.raises(wire.WireError) as err:
         wire.check_finite(bad)
     assert err.value.kind == "nonfinite"
+
+
+# --------------------------------------------------------------------------------------------
+# The generic validator: every field against its declared type and rule.
+
+
+def _edit(msg, edit, extra_frames=()) -> list[bytes]:
+    frames = [bytes(f) for f in wire.encode(msg)]
+    header = msgpack.unpackb(frames[0])
+    edit(header)
+    return [msgpack.packb(header, use_bin_type=True), *frames[1:], *extra_frames]
+
+
+def _add_array(h):
+    h["a"].append(["extra", "<f4", [1]])
+
+
+def _set_field(name, value):
+    return lambda h: h["f"].__setitem__(name, value)
+
+
+def _set_spec(i, j, value):
+    def edit(h):
+        h["a"][i][j] = value
+    return edit
+
+
+U = _unroll()
+HB = wire.HeartbeatMsg(actor_id=2, seq=9, env_steps=100)
+
+
+@pytest.mark.parametrize(
+    "msg, edit, kind",
+    [
+        (HB, _set_field("actor_id", [1, 2]), "bad_type"),  # a list for an int (issue 22)
+        (HB, _set_field("actor_id", True), "bad_type"),  # a bool is not an int
+        (HB, _set_field("actor_id", 1.0), "bad_type"),  # nor is a float
+        (HB, _set_field("seq", "3"), "bad_type"),  # a str for an int (issue 22)
+        (HB, _set_field("seq", -2), "out_of_range"),
+        (HB, _set_field("env_steps", 2**64 - 1), "out_of_range"),  # a huge int
+        (HB, _set_field("final", 1), "bad_type"),
+        (HB, _set_field("actor_id", {"nested": {"dict": [1]}}), "bad_type"),
+        (U, _set_field("episode_returns", [1.5, float("nan")]), "nonfinite"),
+        (U, _set_field("episode_returns", [1.5, "x"]), "bad_type"),
+        (U, _set_field("episode_lengths", [10, 0]), "out_of_range"),
+        (U, _set_field("episode_lengths", [10]), "bad_shape"),  # one length for two returns
+        (U, lambda h: h["f"].pop("episode_lengths"), "bad_shape"),  # a default is held to the rules too
+        (U, lambda h: h["f"].pop("seq"), "malformed"),  # a required field
+        (U, _set_field("obs", [1]), "malformed"),  # an array field in the header
+        (U, _set_spec(0, 1, ["<f4"]), "bad_array"),  # a dtype given as a list (issue 22)
+        (U, _set_spec(0, 1, "<f8"), "bad_array"),  # an allowed dtype, but not this field's
+        (U, _set_spec(0, 2, [4, 3, True]), "bad_array"),  # a bool in a shape
+        (U, _set_spec(0, 2, [4, -3, -5]), "bad_array"),
+        (U, _set_spec(0, 2, [2**32, 2**32, 0]), "bad_array"),  # a product that overflows int64
+        (U, _set_spec(0, 2, [3, 4, 5]), "bad_shape"),  # same bytes, T and N swapped
+        (U, _set_spec(0, 0, "logp"), "bad_array"),  # the same array twice
+        (U, _set_spec(0, 0, 7), "bad_array"),
+        (U, _add_array, "bad_array"),  # an array no field declares (with its 4-byte frame, below)
+        (U, lambda h: h.__setitem__("x", 1), "malformed"),  # an unknown header entry
+        (U, lambda h: h.__setitem__("v", True), "version"),  # True == 1, but not an int here
+        (wire.StateMsg(meta={"a": 1}, arrays={}), _set_field("meta", {"a": [[[[[[[[[[[[[[[[[[1]]]]]]]]]]]]]]]]]]}),
+         "out_of_range"),  # nested deeper than MAX_DEPTH
+        (wire.WeightsMsg(policy_version=1, tensors={"w": np.ones(2, np.float32)}), _set_field("tensors", ["w", "w"]),
+         "bad_array"),
+        (wire.DrawReplyMsg(params=np.zeros((2, 3), np.float32), clip_ids=["a", "b"]), _set_field("clip_ids", ["a"]),
+         "bad_shape"),
+    ],
+)
+def test_every_field_is_checked_against_its_declaration(msg, edit, kind):
+    with pytest.raises(wire.WireError) as err:
+        wire.decode(_edit(msg, edit, [b"\0\0\0\0"] if edit is _add_array else []))
+    assert err.value.kind == kind, err.value
+
+
+def test_bool_arrays_hold_only_zero_and_one():
+    frames = [bytes(f) for f in wire.encode(_unroll())]
+    i = 1 + [s[0] for s in msgpack.unpackb(frames[0])["a"]].index("terminated")
+    frames[i] = b"\x02" + frames[i][1:]
+    with pytest.raises(wire.WireError) as err:
+        wire.decode(frames)
+    assert err.value.kind == "bad_array"
+
+
+def test_float_fields_take_ints_and_empty_clip_lists_are_allowed():
+    msg = wire.decode(_edit(wire.StatsReplyMsg(stats={"a": 1.0}), _set_field("stats", {"a": 3})))
+    assert msg.stats == {"a": 3.0} and type(msg.stats["a"]) is float
+    assert wire.decode(wire.encode(wire.DrawReplyMsg(params=np.zeros((2, 3), np.float32)))).clip_ids == []
+    # Fields declared non-finite keep NaN (a fit loss before the first fit).
+    assert np.isnan(wire.decode(wire.encode(wire.StatsReplyMsg(stats={"loss": float("nan")}))).stats["loss"])
+
+
+def test_a_receiver_pins_shape_names():
+    frames = wire.encode(_unroll(T=4, N=3))
+    assert wire.decode(frames, dims={"T": 4, "N": 3, "obs_dim": 5}).obs.shape == (4, 3, 5)
+    for dims in ({"T": 32}, {"N": 8}, {"obs_dim": 6}, {"act_dim": 3}, {"n_params": 1}):
+        with pytest.raises(wire.WireError) as err:
+            wire.decode(frames, dims=dims)
+        assert err.value.kind == "bad_shape", dims
+
+
+@pytest.mark.parametrize("frames", [b"bytes", None, 5, "text", [5], [None], [b"\x91" * 1000 + b"\xc0"],
+                                    [b"\x91" * 5000 + b"\xc0"], [memoryview(np.zeros((2, 2))).cast("B")[::2]]])
+def test_decode_raises_only_wire_errors_on_any_input(frames):
+    with pytest.raises(wire.WireError):
+        wire.decode(frames)

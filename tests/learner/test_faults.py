@@ -20,7 +20,7 @@ import torch
 import zmq
 
 from actors.config import ActorConfig
-from common import wire
+from common import sockets, wire
 from learner import checkpoint
 from learner.presets import PRESETS
 from learner.train import Run, train
@@ -45,17 +45,16 @@ def _ledger_total(run_dir: Path) -> dict[int, int]:
 
 
 def _assert_every_unroll_accounted(run: Run) -> None:
-    """Ground truth (the ledger) = received + counted gaps + still in flight at the end."""
+    """Ground truth (the ledger) = received + counted gaps, with nothing left "in flight": the
+    drain at stop read until every actor's final heartbeat, whose seq covers its last unroll."""
     sent = _ledger_total(run.run_dir)
     t = run.transport
+    assert t.finals.keys() == sent.keys(), (t.finals, sent)
     for actor_id, total in sent.items():
-        last = t.last_seq.get(actor_id, -1)
-        in_flight_at_end = total - 1 - last
-        assert in_flight_at_end >= 0
+        assert t.last_seq.get(actor_id, -1) == total - 1 == t.finals[actor_id]
         assert t.received[actor_id] <= total
     received = sum(t.received.values())
-    in_flight = sum(total - 1 - t.last_seq.get(a, -1) for a, total in sent.items())
-    assert sum(sent.values()) == received + t.counters["seq_gap_unrolls"] + in_flight
+    assert sum(sent.values()) == received + t.counters["seq_gap_unrolls"]
 
 
 @pytest.fixture
@@ -72,12 +71,24 @@ def test_killed_actor_is_restarted_and_in_flight_losses_are_counted(cluster, tmp
 
     def hook(run: Run, metrics: dict) -> None:
         it = run.learner.iteration
-        if it == 2:
-            import ray
+        import ray
 
-            pid = ray.get(run.pool.handles[0].stats.remote())["pid"]
-            os.kill(pid, signal.SIGKILL)
-        if metrics["faults/actor_restarts"] >= 1 and metrics["health/actors_reporting"] == 2 and it >= 6:
+        if it == 2:
+            seen["killed_pid"] = ray.get(run.pool.handles[0].stats.remote())["pid"]
+            os.kill(seen["killed_pid"], signal.SIGKILL)
+        # NOTE: recovered = the restarted process (another pid) delivered an unroll of its own.
+        # "Reporting" alone also counts the killed actor within its stall timeout, and unrolls
+        # the killed process had queued can still arrive; a stop sent while the new process had
+        # not started its loop left no final heartbeat to account its tail.
+        if "killed_pid" in seen and "back_at_received" not in seen:
+            try:
+                pid = ray.get(run.pool.handles[0].stats.remote(), timeout=1.0)["pid"]
+            except ray.exceptions.RayError:
+                pid = None
+            if pid is not None and pid != seen["killed_pid"]:
+                seen["back_at_received"] = run.transport.received[0]
+        if (metrics["faults/actor_restarts"] >= 1 and it >= 6 and "back_at_received" in seen
+                and run.transport.received[0] > seen["back_at_received"]):
             seen["recovered_at"] = it
             run.stop.event.set()
         seen["run"] = run
@@ -164,50 +175,62 @@ def test_sampler_outage_degrades_then_recovers_with_its_state(cluster, tmp_path)
     assert "sampler state unavailable" in next(tmp_path.glob("*/log.txt")).read_text()
 
 
-def _hostile_frames(obs_dim: int = 12) -> list[tuple[str, list[bytes]]]:
+def _hostile_frames(obs_dim: int = 12, T: int = 32, N: int = 4) -> list[tuple[str, list[bytes]]]:
+    """Unrolls shaped like the run's (reach, T x N of `_cfg`), each wrong in one way."""
     good = wire.UnrollMsg(
-        actor_id=99, seq=0, policy_version=0, obs=np.zeros((2, 1, obs_dim), np.float32),
-        next_obs=np.zeros((2, 1, obs_dim), np.float32), actions=np.zeros((2, 1, 2), np.float32),
-        logp=np.zeros((2, 1), np.float32), rewards=np.zeros((2, 1), np.float32),
-        terminated=np.zeros((2, 1), bool), truncated=np.zeros((2, 1), bool), params=np.zeros((2, 1, 2), np.float32),
+        actor_id=0, seq=0, policy_version=0, obs=np.zeros((T, N, obs_dim), np.float32),
+        next_obs=np.zeros((T, N, obs_dim), np.float32), actions=np.zeros((T, N, 2), np.float32),
+        logp=np.zeros((T, N), np.float32), rewards=np.zeros((T, N), np.float32),
+        terminated=np.zeros((T, N), bool), truncated=np.zeros((T, N), bool), params=np.zeros((T, N, 2), np.float32),
     )
     frames = [bytes(f) for f in wire.encode(good)]
-    nan = [bytes(f) for f in wire.encode(dataclasses.replace(good, rewards=np.full((2, 1), np.nan, np.float32)))]
-    wrong_shape = [bytes(f) for f in wire.encode(dataclasses.replace(good, obs=np.zeros((2, 1, obs_dim + 1), np.float32)))]
+    nan = [bytes(f) for f in wire.encode(dataclasses.replace(good, rewards=np.full((T, N), np.nan, np.float32)))]
+    wrong_shape = [bytes(f) for f in wire.encode(dataclasses.replace(good, obs=np.zeros((T, N, obs_dim + 1), np.float32)))]
     header = msgpack.unpackb(frames[0])
     header["v"] = 42
+    phantom = [bytes(f) for f in wire.encode(wire.HeartbeatMsg(actor_id=99, seq=0, env_steps=0))]
     return [
         ("malformed", [b"\x00garbage\xff"]),
         ("malformed", frames[:-3]),  # truncated multipart
         ("version", [msgpack.packb(header), *frames[1:]]),
         ("nonfinite", nan),
         ("bad_shape", wrong_shape),
+        ("unknown_actor", phantom),
     ]
 
 
 def test_hostile_bytes_are_rejected_counted_and_training_continues(cluster, tmp_path):
+    """An insider (a peer holding the run's actor keys) sends malformed messages: the codec
+    refuses and counts each by kind. An outsider without keys is refused by the CURVE handshake
+    on every socket, and counted."""
     seen: dict = {}
 
     def hook(run: Run, metrics: dict) -> None:
         if run.learner.iteration == 2:
             ctx = zmq.Context.instance()
-            push = ctx.socket(zmq.PUSH)
-            push.setsockopt(zmq.LINGER, 1000)
-            push.connect(run.transport.endpoints["unrolls"])
+            insider = run.keys.for_actors()
+            push = sockets.connect_unroll_push(run.transport.endpoints["unrolls"], insider)
             for _, frames in _hostile_frames():
                 push.send_multipart(frames)
-            push.close()
+            push.close(linger=1000)
+            for kind, endpoint in ((zmq.PUSH, run.transport.endpoints["unrolls"]),
+                                   (zmq.DEALER, run.transport.endpoints["weights_router"]),
+                                   (zmq.DEALER, run.sampler.endpoint)):
+                outsider = ctx.socket(kind)
+                outsider.setsockopt(zmq.LINGER, 0)
+                outsider.connect(endpoint)
+                seen.setdefault("outsiders", []).append(outsider)
             # NOTE: this hook runs on the learner's own thread, so replies are read later, after
             # the learner has been back in its receive loop.
             seen["dealers"] = []
             for endpoint in (run.transport.endpoints["weights_router"], run.sampler.endpoint):
-                dealer = ctx.socket(zmq.DEALER)
-                dealer.setsockopt(zmq.LINGER, 0)
-                dealer.connect(endpoint)
+                dealer = sockets.connect_dealer(endpoint, insider)
                 dealer.send_multipart([b"", b"\xc1garbage"])
                 dealer.send_multipart([b"", msgpack.packb({"p": wire.PROTOCOL, "k": "tick", "v": 7, "f": {}, "a": []})])
                 seen["dealers"].append(dealer)
         if run.learner.iteration == 6:
+            for outsider in seen.pop("outsiders"):
+                outsider.close(linger=0)
             seen["replies"] = []
             for dealer in seen.pop("dealers"):
                 for _ in range(2):
@@ -215,16 +238,22 @@ def test_hostile_bytes_are_rejected_counted_and_training_continues(cluster, tmp_
                         seen["replies"].append(wire.decode(dealer.recv_multipart()[1:]))
                 dealer.close()
             seen["counters"] = dict(run.transport.counters)
+            seen["run"] = run
             seen["weights_rejected"] = dict(run.transport.snapshots.rejected)
             seen["sampler_stats"] = run.sampler.client.stats()
 
     assert train(_cfg(tmp_path, cluster.address, max_iterations=6), on_iteration=hook) == 0
     c = seen["counters"]
-    for kind in ("malformed", "version", "nonfinite", "bad_shape"):
+    for kind in ("malformed", "version", "nonfinite", "bad_shape", "unknown_actor"):
         assert c[f"rejected/{kind}"] >= 1, (kind, c)
+    assert 99 not in seen["run"].transport.last_seen  # no phantom actor in the health counters
     assert len(seen["replies"]) == 4 and all(isinstance(r, wire.ErrorMsg) for r in seen["replies"])
-    assert sum(seen["weights_rejected"].values()) == 2
+    assert sum(v for k, v in seen["weights_rejected"].items() if not k.startswith("auth_")) == 2
     assert seen["sampler_stats"]["requests/rejected"] >= 2
+    # The outsiders: refused by the handshake on the unroll socket, the weights ROUTER, the sampler.
+    assert sum(v for k, v in c.items() if k.startswith("rejected/auth_")) >= 1, c
+    assert sum(v for k, v in seen["weights_rejected"].items() if k.startswith("auth_")) >= 1, seen["weights_rejected"]
+    assert sum(v for k, v in seen["sampler_stats"].items() if k.startswith("requests/rejected/auth_")) >= 1
 
 
 def test_learner_sigkill_then_resume_continues_from_last_checkpoint(tmp_path):
@@ -246,3 +275,31 @@ def test_learner_sigkill_then_resume_continues_from_last_checkpoint(tmp_path):
     assert resumed.returncode == 0, resumed.stdout + resumed.stderr
     assert f"at iteration {before}" in resumed.stdout
     assert checkpoint.load_latest(ckpt)[1]["iteration"] == before + 2
+
+
+def test_an_unexpected_exception_in_the_loop_writes_a_checkpoint_and_exits_nonzero(tmp_path):
+    """The PPO update raises on iteration 3 of a serial run that checkpoints only every 100
+    iterations: the two finished iterations are saved before the process exits with an error."""
+    script = (
+        "import sys\n"
+        "from learner import ppo\n"
+        "from learner.main import main\n"
+        "real, calls = ppo.PPO.update, []\n"
+        "def update(self, *a, **kw):\n"
+        "    calls.append(1)\n"
+        "    if len(calls) == 3:\n"
+        "        raise RuntimeError('injected failure in the PPO update')\n"
+        "    return real(self, *a, **kw)\n"
+        "ppo.PPO.update = update\n"
+        "sys.exit(main(sys.argv[1:]))\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    proc = subprocess.run([sys.executable, "-c", script, "--preset", "reach-tiny", "--mode", "serial",
+                           "--runs-dir", str(tmp_path), "--total-env-steps", "1000000", "--checkpoint-every", "100"],
+                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=300, check=False)
+    assert proc.returncode != 0, proc.stdout + proc.stderr
+    assert "injected failure in the PPO update" in proc.stderr
+    run = tmp_path / "reach-tiny"
+    _, state = checkpoint.load_latest(run / "ckpt")
+    assert state["iteration"] == 2 and "transport" in state and "sampler" in state
+    assert "RuntimeError in the training loop at iteration 2" in (run / "log.txt").read_text()

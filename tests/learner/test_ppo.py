@@ -304,3 +304,87 @@ def test_update_skips_non_finite_minibatches_like_the_reference(one_thread):
     assert new.skipped_updates == ref.skipped_updates == 8
     assert m_new.keys() == m_ref.keys() and m_new["minibatch_steps"] == 0
     assert all(torch.equal(a, b) for a, b in zip(before, new.policy.parameters()))
+
+
+# --- issue 23: PPO as intended --------------------------------------------------------------
+
+
+def _far_batch(policy: GaussianPolicy, T: int = 16, B: int = 8, reward_scale: float = 1.0) -> Batch:
+    """Observations far from a fresh normalizer's (0, 1), actions and log-probabilities from
+    `policy` as it is (the actors' policy, normalizer included)."""
+    obs = 5.0 + 3.0 * torch.randn(T, B, 3)
+    with torch.no_grad():
+        dist = policy.distribution(obs.reshape(T * B, 3))
+        actions = dist.sample()
+        logp = dist.log_prob(actions).sum(-1)
+    return Batch(obs=obs, next_obs=obs + 0.1, actions=actions.reshape(T, B, -1), logp=logp.reshape(T, B),
+                 rewards=reward_scale * (1.0 + torch.rand(T, B)), terminated=torch.zeros(T, B, dtype=torch.bool),
+                 truncated=torch.zeros(T, B, dtype=torch.bool))
+
+
+def test_the_first_minibatch_sees_the_policy_the_actors_ran() -> None:
+    """lr 0: the policy never moves, so every ratio is 1 and the KL 0, even though this batch
+    moves the observation statistics a long way (they move after the epochs)."""
+    torch.manual_seed(0)
+    cfg = PolicyConfig(hidden=(16, 16))
+    policy, value = GaussianPolicy(3, 2, cfg), ValueNet(3, cfg)
+    batch = _far_batch(policy)
+    before = policy.normalizer.mean.clone()
+    out = PPO(policy, value, PPOConfig(minibatch=32, epochs=2, lr=0.0)).update(batch)
+    assert out["kl"] == pytest.approx(0.0, abs=1e-7) and out["clip_frac"] == 0.0
+    assert (policy.normalizer.mean - before).abs().max() > 1.0  # and the statistics did move, afterwards
+
+
+def test_the_reported_kl_is_the_moving_policys(monkeypatch) -> None:
+    """With a KL stop, the KL reported (and fed to the adaptive rate) averages the minibatches
+    measured while the policy moved, up to the one that stopped it, not the frozen rest."""
+    import learner.ppo as ppo_module
+
+    torch.manual_seed(0)
+    cfg = PolicyConfig(hidden=(16, 16))
+    policy, value = GaussianPolicy(3, 2, cfg), ValueNet(3, cfg)
+    batch = _far_batch(policy)
+    seen = []
+    real = ppo_module._policy_losses
+
+    def recording(*args, **kw):
+        out = real(*args, **kw)
+        seen.append(float(out[2]))
+        return out
+
+    monkeypatch.setattr(ppo_module, "_policy_losses", recording)
+    out = PPO(policy, value, PPOConfig(minibatch=16, epochs=4, lr=3e-2, kl_stop=1e-4)).update(batch)
+    moving = int(out["policy_steps"]) + 1  # the steps taken and the minibatch that stopped them
+    assert 1 < moving < len(seen), "the stop should fire within the update"
+    assert out["kl"] == pytest.approx(np.mean(seen[:moving]), rel=1e-5)
+    assert out["kl"] < np.mean(seen), "the frozen policy's minibatches must not enter the reported KL"
+
+
+def test_value_statistics_keep_every_value_and_standardize_the_targets() -> None:
+    torch.manual_seed(0)
+    cfg = PolicyConfig(hidden=(16, 16))
+    value = ValueNet(3, cfg)
+    obs = torch.randn(64, 3)
+    with torch.no_grad():
+        before = value(obs).clone()
+    for scale in (100.0, 300.0):
+        value.update_target_stats(scale + 10.0 * torch.randn(512))
+        with torch.no_grad():
+            torch.testing.assert_close(value(obs), before, rtol=1e-4, atol=1e-3)
+    assert float(value.target_std) > 5.0 and float(value.target_mean) > 100.0
+
+
+@pytest.mark.parametrize("scale", [100.0])
+def test_standardized_targets_bring_the_value_gradient_to_the_policys_scale(scale: float) -> None:
+    """Returns of ~100 x (1/(1-gamma)): with raw targets the value gradient dwarfs the policy's;
+    with standardized ones it is of the same order."""
+    norms = {}
+    for on in (False, True):
+        torch.manual_seed(0)
+        cfg = PolicyConfig(hidden=(16, 16))
+        policy, value = GaussianPolicy(3, 2, cfg), ValueNet(3, cfg)
+        batch = _far_batch(policy, reward_scale=scale)
+        out = PPO(policy, value, PPOConfig(minibatch=32, epochs=1, lr=1e-3, value_normalization=on)).update(batch)
+        norms[on] = out["value_grad_norm"] / max(out["grad_norm"], 1e-8)
+    assert norms[False] > 100.0, norms
+    assert norms[True] < norms[False] / 30.0, norms

@@ -19,8 +19,8 @@ def test_presets_and_their_ablations(character: str) -> None:
     assert base.policy.hidden == (128, 128, 128) and base.steps_per_iteration == 4096
     uniform, nonorm, fixed = (PRESETS[f"{character}-{v}"][1] for v in ("uniform", "nonorm", "fixedshape"))
     assert uniform.sampler.k == 0 and uniform.task == base.task
-    assert not nonorm.task.reward_normalization and nonorm.sampler == base.sampler
-    assert not fixed.task.vary_shape and fixed.sampler == base.sampler
+    assert not nonorm.task.imitate.reward_normalization and nonorm.sampler == base.sampler
+    assert not fixed.task.body.vary_shape and fixed.sampler == base.sampler
     space = task_space(base.task)
     assert all(n in space.names for n in base.sampler.plot_params)
     assert (space.high_array > space.low_array).all()

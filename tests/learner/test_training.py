@@ -78,13 +78,13 @@ def test_resume_continues_counters_and_sampler(tmp_path):
     assert 0 < first["train_seconds"] < second["train_seconds"]
 
 
-def test_resume_never_refuses_to_overwrite(tmp_path):
+def test_resume_never_refuses_to_overwrite(tmp_path, capsys):
     cfg = _tiny(tmp_path, mode="serial", max_iterations=1)
     assert train(cfg) == 0
     try:
         train(dataclasses.replace(cfg, resume="never"))
     except SystemExit as exc:
-        assert "already has checkpoints" in str(exc)
+        assert exc.code == 2 and "already has checkpoints" in capsys.readouterr().err
     else:
         raise AssertionError("resume=never overwrote a run")
 
@@ -159,7 +159,7 @@ def test_sigterm_in_local_mode_checkpoints_exits_zero_and_leaves_no_process(tmp_
 def test_bad_config_gets_a_clear_error(tmp_path):
     proc = _cli("--preset", "reach-tiny", "--runs-dir", str(tmp_path), "--steps-per-iteration", "0")
     out, _ = proc.communicate(timeout=60)
-    assert proc.returncode != 0 and "steps-per-iteration = 0 must be > 0" in out
+    assert proc.returncode == 2 and "--steps-per-iteration = 0 is not allowed: give an integer >= 1" in out
     proc = _cli("--preset", "nope")
     out, _ = proc.communicate(timeout=60)
     assert proc.returncode != 0 and "reach-tiny" in out
@@ -170,8 +170,8 @@ def test_bad_config_gets_a_clear_error(tmp_path):
 
 def test_bad_executor_options_exit_2_naming_the_value_and_make_no_run_folder(tmp_path):
     for args, says in [(("--task.executor.clips", "nope"), "clips ['nope'] do not play on the humanoid"),
-                       (("--task.vary-shape",), "trains on the base humanoid"),
-                       (("--task.executor.catch-up-steps", "-1"), "catch-up-steps = -1 must be")]:
+                       (("--task.body.vary-shape",), "trains on the base humanoid"),
+                       (("--task.executor.catch-up-steps", "-1"), "catch-up-steps = -1 is not allowed: give an integer >= 0")]:
         proc = _cli("--preset", "executor-tiny", "--mode", "serial", "--runs-dir", str(tmp_path), *args)
         out, _ = proc.communicate(timeout=120)
         assert proc.returncode == 2 and says in out and "Traceback" not in out, out
@@ -184,11 +184,11 @@ def test_bad_ppo_and_variance_options_name_the_value():
 
     import pytest
 
-    with pytest.raises(ValueError, match=r"--ppo.kl-stop = -0.1 must be >= 0"):
+    with pytest.raises(ValueError, match=r"--ppo.kl-stop = -0.1 is not allowed: give a finite number >= 0"):
         RunConfig(ppo=PPOConfig(kl_stop=-0.1))
-    with pytest.raises(ValueError, match=r"--policy.log-std-anneal-steps = -5 must be >= 0"):
+    with pytest.raises(ValueError, match=r"--policy.log-std-anneal-steps = -5 is not allowed: give an integer >= 0"):
         RunConfig(policy=PolicyConfig(log_std_anneal_steps=-5))
-    from common.tasks.base import TaskConfig
+    from common.tasks.body_config import BodyConfig
 
-    with pytest.raises(ValueError, match=r"--task.shape-box-scale = 0.0 must be in \(0, 1\]"):
-        RunConfig(task=TaskConfig(shape_box_scale=0.0))
+    with pytest.raises(ValueError, match=r"--task.body.shape-box-scale = 0.0 is not allowed: give a finite number in \(0, 1\]"):
+        BodyConfig(shape_box_scale=0.0)

@@ -1,25 +1,45 @@
 """The learner's sockets under hostile input, over real ZeroMQ on 127.0.0.1: every bad message
-is refused and counted by kind, sequence gaps and stale unrolls are counted, and the weight
-snapshot service keeps answering."""
+is refused and counted by kind (never raised, never a phantom actor), sequence gaps and stale
+unrolls are counted, the weight snapshot service keeps answering, the drain at stop counts what
+is still in flight, and a lossy proxy between real actors and the learner shows up as exactly
+as many lost unrolls as it dropped."""
 
 from __future__ import annotations
 
 import dataclasses
+import threading
+from pathlib import Path
 
 import msgpack
 import numpy as np
 import zmq
 
-from common import wire
+from common import curve, wire
+from learner.presets import PRESETS
+from learner.train import Run, train
 from learner.transport import LearnerTransport
 
+T, N = 2, 3
 
-def _unroll(seq: int, version: int = 0, **kw) -> wire.UnrollMsg:
-    z = lambda *s: np.zeros(s, np.float32)  # noqa: E731
-    msg = wire.UnrollMsg(actor_id=1, seq=seq, policy_version=version, obs=z(2, 3, 4), next_obs=z(2, 3, 4),
-                         actions=z(2, 3, 2), logp=z(2, 3), rewards=z(2, 3), terminated=np.zeros((2, 3), bool),
-                         truncated=np.zeros((2, 3), bool), params=z(2, 3, 1))
+
+def _transport(**kw) -> LearnerTransport:
+    args = {"obs_dim": 4, "act_dim": 2, "n_params": 1, "unroll_length": T, "envs_per_actor": N, "num_actors": 2}
+    return LearnerTransport("127.0.0.1", **{**args, **kw})
+
+
+def _unroll(seq: int, version: int = 0, actor_id: int = 1, t: int = T, n: int = N, **kw) -> wire.UnrollMsg:
+    z = lambda *s: np.zeros(s, np.float32)
+    msg = wire.UnrollMsg(actor_id=actor_id, seq=seq, policy_version=version, obs=z(t, n, 4), next_obs=z(t, n, 4),
+                         actions=z(t, n, 2), logp=z(t, n), rewards=z(t, n), terminated=np.zeros((t, n), bool),
+                         truncated=np.zeros((t, n), bool), params=z(t, n, 1))
     return dataclasses.replace(msg, **kw)
+
+
+def _push(t: LearnerTransport) -> zmq.Socket:
+    push = zmq.Context.instance().socket(zmq.PUSH)
+    push.setsockopt(zmq.LINGER, 1000)
+    push.connect(t.endpoints["unrolls"])
+    return push
 
 
 def _drain(t: LearnerTransport, version: int = 0, lag: int = 1, rounds: int = 40) -> list:
@@ -29,28 +49,31 @@ def _drain(t: LearnerTransport, version: int = 0, lag: int = 1, rounds: int = 40
     return out
 
 
+def _with_header(frames: list[bytes], edit) -> list[bytes]:
+    header = msgpack.unpackb(frames[0])
+    edit(header)
+    return [msgpack.packb(header), *frames[1:]]
+
+
 def test_hostile_unroll_channel_input_is_counted_by_kind():
-    t = LearnerTransport("127.0.0.1", obs_dim=4, act_dim=2, n_params=1)
-    push = zmq.Context.instance().socket(zmq.PUSH)
-    push.setsockopt(zmq.LINGER, 1000)
-    push.connect(t.endpoints["unrolls"])
+    t = _transport()
+    push = _push(t)
     try:
-        good = [bytes(f) for f in wire.encode(_unroll(0))]
-        header = msgpack.unpackb(good[0])
-        header["v"] = 9
+        good = [bytes(f) for f in wire.encode(_unroll(0, version=5))]
         push.send_multipart([b"\xff\x00 not msgpack"])
-        push.send_multipart(good[:4])
-        push.send_multipart([msgpack.packb(header), *good[1:]])
-        push.send_multipart(wire.encode(_unroll(1, rewards=np.full((2, 3), np.inf, np.float32))))
-        push.send_multipart(wire.encode(_unroll(1, obs=np.zeros((2, 3, 5), np.float32))))
+        push.send_multipart(good[:4])  # truncated multipart
+        push.send_multipart(_with_header(good, lambda h: h.update(v=9)))
+        push.send_multipart(wire.encode(_unroll(1, version=5, rewards=np.full((T, N), np.inf, np.float32))))
+        push.send_multipart(wire.encode(_unroll(1, version=5, obs=np.zeros((T, N, 5), np.float32))))
         push.send_multipart(wire.encode(wire.TickMsg(iteration=3)))
         push.send_multipart(good)  # seq 0: fine
-        push.send_multipart(wire.encode(_unroll(3)))  # seq 1 and 2 never arrive
-        push.send_multipart(wire.encode(_unroll(4, version=-5)))  # far too old
-        got = _drain(t)
+        push.send_multipart(wire.encode(_unroll(3, version=5)))  # seq 1 and 2 never arrive
+        push.send_multipart(wire.encode(_unroll(4, version=3)))  # too old for lag 1
+        push.send_multipart(wire.encode(_unroll(5, version=6)))  # a version the learner never published
+        got = _drain(t, version=5)
         c = t.counters
         assert [u.seq for u in got] == [0, 3]
-        assert c["rejected/malformed"] == 2 and c["rejected/version"] == 1
+        assert c["rejected/malformed"] == 2 and c["rejected/version"] == 1 and c["rejected/out_of_range"] == 1
         assert c["rejected/nonfinite"] == 1 and c["rejected/bad_shape"] == 1 and c["rejected/unknown_kind"] == 1
         assert c["seq_gap_unrolls"] == 2 and c["stale_unrolls"] == 1
         assert t.received[1] == 3
@@ -59,31 +82,129 @@ def test_hostile_unroll_channel_input_is_counted_by_kind():
         t.close()
 
 
+def test_the_wrong_typed_messages_of_issue_22_are_counted_and_the_learner_keeps_receiving():
+    """Each of these killed a running learner before: now each is one counted rejection, and
+    none creates an actor in the health counters."""
+    t = _transport()
+    push = _push(t)
+    try:
+        good = [bytes(f) for f in wire.encode(_unroll(0))]
+        heartbeat = [bytes(f) for f in wire.encode(wire.HeartbeatMsg(actor_id=0, seq=-1, env_steps=0))]
+
+        def dtype_as_list(h):
+            h["a"][0][1] = ["<f4"]
+
+        cases = [
+            ("bad_type", _with_header(heartbeat, lambda h: h["f"].update(actor_id=[1, 2]))),
+            ("bad_array", _with_header(good, dtype_as_list)),
+            ("bad_shape", [bytes(f) for f in wire.encode(_unroll(0, t=T + 3))]),  # self-consistent, wrong T
+            ("bad_shape", [bytes(f) for f in wire.encode(_unroll(0, n=N + 1))]),  # wrong N
+            ("bad_type", _with_header(good, lambda h: h["f"].update(seq="7"))),
+            ("bad_type", _with_header(good, lambda h: h["f"].update(seq=True))),  # a bool is not an int
+            ("out_of_range", _with_header(good, lambda h: h["f"].update(seq=2**63))),
+            ("unknown_actor", [bytes(f) for f in wire.encode(_unroll(0, actor_id=2))]),
+            ("unknown_actor", [bytes(f) for f in wire.encode(wire.HeartbeatMsg(actor_id=77, seq=0, env_steps=1))]),
+            ("bad_array", _with_header(good, lambda h: h["a"].append(["extra", "<f4", [0]])) + [b""]),
+            ("bad_type", _with_header(good, lambda h: h["f"].update(episode_returns={"a": 1}))),
+            ("nonfinite", _with_header(good, lambda h: h["f"].update(episode_returns=[float("nan")],
+                                                                      episode_lengths=[3]))),
+            ("bad_shape", _with_header(good, lambda h: h["f"].update(episode_returns=[1.0], episode_lengths=[]))),
+        ]
+        for _, frames in cases:
+            push.send_multipart(frames)
+        push.send_multipart(good)
+        got = _drain(t)
+        expected: dict[str, int] = {}
+        for kind, _ in cases:
+            expected[f"rejected/{kind}"] = expected.get(f"rejected/{kind}", 0) + 1
+        assert {k: v for k, v in t.counters.items() if k.startswith("rejected/")} == expected
+        assert t.rejected() == len(cases)
+        assert [u.seq for u in got] == [0]
+        assert set(t.last_seen) == {1} and set(t.last_seq) == {1}  # no phantom actors 2, 77
+    finally:
+        push.close()
+        t.close()
+
+
+def test_an_internal_error_while_accepting_is_counted_not_raised(monkeypatch):
+    t = _transport()
+    push = _push(t)
+    try:
+        calls = []
+
+        def broken(*a, **kw):
+            calls.append(1)
+            raise KeyError("a bug of ours")
+
+        monkeypatch.setattr(t, "_book", broken)
+        push.send_multipart(wire.encode(_unroll(0)))
+        assert _drain(t, rounds=10) == []
+        assert calls and t.counters["rejected/internal"] == 1
+        monkeypatch.undo()
+        push.send_multipart(wire.encode(_unroll(1)))
+        assert [u.seq for u in _drain(t, rounds=10)] == [1]
+    finally:
+        push.close()
+        t.close()
+
+
 def test_a_resumed_learner_keeps_its_counters_but_counts_no_gap_for_unrolls_after_its_checkpoint():
     """The checkpoint was written when actor 1 had sent seq 10; the learner trained on 11-19 and
     stopped; the actor's ledger numbers on from 20. Only a gap after that baseline counts."""
-    before = LearnerTransport("127.0.0.1", obs_dim=4, act_dim=2, n_params=1)
+    before = _transport()
     before.last_seq[1] = 10
     before.counters["seq_gap_unrolls"] = 3
     state = before.state_dict()
     before.close()
-    t = LearnerTransport("127.0.0.1", obs_dim=4, act_dim=2, n_params=1)
+    t = _transport()
     t.load_state_dict(state)
-    push = zmq.Context.instance().socket(zmq.PUSH)
-    push.setsockopt(zmq.LINGER, 1000)
-    push.connect(t.endpoints["unrolls"])
+    push = _push(t)
     try:
+        push.send_multipart(wire.encode(wire.HeartbeatMsg(actor_id=0, seq=40, env_steps=1)))  # baseline, no gap
         for seq in (20, 21, 23):
             push.send_multipart(wire.encode(_unroll(seq)))
-        assert [u.seq for u in _drain(t)] == [20, 21, 23]
-        assert t.counters["seq_gap_unrolls"] == 3 + 1  # seq 22 only
+        push.send_multipart(wire.encode(_unroll(42, actor_id=0)))  # 41 lost
+        assert [u.seq for u in _drain(t)] == [20, 21, 23, 42]
+        assert t.counters["seq_gap_unrolls"] == 3 + 1 + 1  # seq 22 of actor 1, 41 of actor 0
+    finally:
+        push.close()
+        t.close()
+
+
+def test_heartbeats_expose_lost_unrolls_and_drain_at_stop_counts_what_arrives():
+    """A heartbeat follows the unrolls on their pipe: numbers up to its seq that did not arrive
+    are lost. At stop, `drain` reads until each actor's final heartbeat: what arrives then is
+    counted, and a final seq past the last unroll received counts the tail as lost."""
+    t = _transport()
+    push = _push(t)
+    try:
+        for seq in (0, 1, 2):
+            push.send_multipart(wire.encode(_unroll(seq, actor_id=0)))
+        push.send_multipart(wire.encode(wire.HeartbeatMsg(actor_id=0, seq=4, env_steps=10)))  # 3, 4 lost
+        push.send_multipart(wire.encode(wire.HeartbeatMsg(actor_id=1, seq=-1, env_steps=0)))  # nothing sent yet
+        assert len(_drain(t, rounds=10)) == 3
+        assert t.lost() == 2 and t.last_seq == {0: 4}
+        # Stop: actor 0 sends two more unrolls and its final word; actor 1 numbered 0..2, sent only 0.
+        push.send_multipart(wire.encode(_unroll(5, actor_id=0)))
+        push.send_multipart(wire.encode(_unroll(6, actor_id=0)))
+        push.send_multipart(wire.encode(wire.HeartbeatMsg(actor_id=0, seq=6, env_steps=20, final=True)))
+        push.send_multipart(wire.encode(_unroll(0, actor_id=1)))
+        push.send_multipart(wire.encode(wire.HeartbeatMsg(actor_id=1, seq=2, env_steps=20, final=True)))
+        assert t.drain(0, 1, {0, 1}, quiet_s=5.0, max_s=10.0) == 3
+        assert t.finals == {0: 6, 1: 2}
+        assert t.lost() == 2 + 2
+        assert t.counters["drained_at_stop"] == 3 and t.counters["unused_at_stop"] == 3
+        numbered = 7 + 3
+        assert sum(t.received.values()) + t.lost() == numbered  # nothing left "in flight"
+        # An actor that never says its final word costs the quiet period, not a hang.
+        assert t.drain(0, 1, {0, 1, 5}, quiet_s=0.3, max_s=5.0) == 0
     finally:
         push.close()
         t.close()
 
 
 def test_snapshot_service_answers_garbage_with_errors_and_serves_weights():
-    t = LearnerTransport("127.0.0.1", obs_dim=4, act_dim=2, n_params=1)
+    t = _transport()
     dealer = zmq.Context.instance().socket(zmq.DEALER)
     dealer.setsockopt(zmq.LINGER, 0)
     dealer.connect(t.endpoints["weights_router"])
@@ -98,10 +219,121 @@ def test_snapshot_service_answers_garbage_with_errors_and_serves_weights():
 
         assert isinstance(ask([b"junk"]), wire.ErrorMsg)
         assert ask(wire.encode(wire.WeightsRequestMsg(actor_id=0))).error_kind == "not_ready"
+        assert ask(wire.encode(wire.WeightsRequestMsg(actor_id=9))).error_kind == "unknown_actor"
         t.publish(wire.WeightsMsg(policy_version=4, tensors={"w": np.ones(3, np.float32)}))
         reply = ask(wire.encode(wire.WeightsRequestMsg(actor_id=0)))
         assert isinstance(reply, wire.WeightsMsg) and reply.policy_version == 4
-        assert t.snapshots.rejected["malformed"] == 1
+        assert t.snapshots.rejected == {"malformed": 1, "unknown_actor": 1}
     finally:
         dealer.close()
         t.close()
+
+
+# --------------------------------------------------------------------------------------------
+# A lossy proxy between real rollout actors and the learner.
+
+
+class LossyProxy:
+    """PULL (actors connect here) -> PUSH (to the learner's PULL), on 127.0.0.1, dropping every
+    `every`-th unroll; heartbeats and everything else pass. With the run's CURVE keys it is a
+    member on both sides (a server to the actors, an actor to the learner)."""
+
+    def __init__(self, learner_endpoint: str, every: int, keys=None):
+        self.every = every
+        self.drop_next = 0
+        """Drop this many unrolls from now on, whatever their place in the pattern."""
+        self.unrolls = self.dropped = self.forwarded = 0
+        self.dropped_seqs: list[tuple[int, int]] = []
+        ctx = zmq.Context.instance()
+        self.front = ctx.socket(zmq.PULL)
+        curve.make_server(self.front, keys)
+        self.front.setsockopt(zmq.LINGER, 0)
+        port = self.front.bind_to_random_port("tcp://127.0.0.1")
+        self.endpoint = f"tcp://127.0.0.1:{port}"
+        self.back = ctx.socket(zmq.PUSH)
+        curve.make_client(self.back, keys.for_actors() if keys is not None else None, curve.ACTOR)
+        self.back.setsockopt(zmq.LINGER, 2000)
+        self.back.connect(learner_endpoint)
+        self._stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, name="lossy-proxy", daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            if not self.front.poll(20, zmq.POLLIN):
+                continue
+            frames = self.front.recv_multipart()
+            header = msgpack.unpackb(frames[0])
+            if header["k"] == "unroll":
+                self.unrolls += 1
+                if self.unrolls % self.every == 0 or self.drop_next > 0:
+                    self.drop_next = max(0, self.drop_next - 1)
+                    self.dropped += 1
+                    self.dropped_seqs.append((header["f"]["actor_id"], header["f"]["seq"]))
+                    continue
+            self.back.send_multipart(frames)
+            self.forwarded += 1
+
+    def close(self) -> None:
+        self._stop.set()
+        self.thread.join(timeout=10)
+        self.front.close()
+        self.back.close()
+
+
+def _ledger_total(run_dir: Path) -> dict[int, int]:
+    return {int(p.stem.split("-")[1]): int(p.read_text().strip("\0 \n")) + 1 for p in (run_dir / "ledger").glob("actor-*.seq")}
+
+
+def test_a_lossy_proxy_between_actors_and_learner_raises_the_lost_count_by_exactly_the_drops(tmp_path, monkeypatch):
+    """A real serial run (two real rollout actors, ledgers on) with a proxy that drops every 3rd
+    unroll in flight. After the last iteration each actor sends one unroll that passes (drained
+    at stop) and then one that the proxy drops: no later unroll can reveal that one, only the
+    actor's final heartbeat. The learner's lost count equals the number dropped, and for every
+    actor ledger = received + lost, with nothing left "in flight"."""
+    proxies: list[LossyProxy] = []
+    real_init = LearnerTransport.__init__
+
+    def init(self, *args, **kw):
+        real_init(self, *args, **kw)
+        proxies.append(LossyProxy(self.endpoints["unrolls"], every=3, keys=kw.get("keys")))
+        self.endpoints = {**self.endpoints, "unrolls": proxies[-1].endpoint}
+
+    monkeypatch.setattr(LearnerTransport, "__init__", init)
+    cfg = dataclasses.replace(PRESETS["reach-tiny"][1], runs_dir=str(tmp_path), quiet=True, mode="serial",
+                              max_iterations=3, total_env_steps=10**6, checkpoint_every=100, vm_plot_every=0)
+    seen: dict = {}
+
+    def hook(run: Run, metrics: dict) -> None:
+        seen["run"] = run
+        if run.learner.iteration == cfg.max_iterations:  # the loop ends after this hook
+            proxy = proxies[0]
+            proxy.drop_next = 0
+            before = proxy.unrolls
+            run.pool.pump()  # one unroll per actor that gets through: drained at stop
+            for _ in range(200):
+                if proxy.unrolls == before + 2:
+                    break
+                threading.Event().wait(0.01)
+            proxy.drop_next = 2  # NOTE: set after the previous two passed, so it cannot catch them
+            run.pool.pump()  # the last unroll of each actor: dropped
+
+    try:
+        assert train(cfg, on_iteration=hook) == 0
+    finally:
+        for p in proxies:
+            p.close()
+    proxy, t = proxies[0], seen["run"].transport
+    sent = _ledger_total(seen["run"].run_dir)
+    print(f"\nlossy proxy: {proxy.unrolls} unrolls through it, {proxy.dropped} dropped {proxy.dropped_seqs}; "
+          f"learner: received {sum(t.received.values())}, lost {t.lost()}, finals {t.finals}, "
+          f"drained {t.counters['drained_at_stop']}; ledgers {sent}")
+    assert proxy.dropped >= 5
+    assert t.lost() == proxy.dropped
+    assert t.finals.keys() == {0, 1}
+    assert {(a, t.finals[a]) for a in (0, 1)} <= set(proxy.dropped_seqs)  # the tails were dropped
+    assert t.counters["drained_at_stop"] >= 1
+    assert sum(sent.values()) == proxy.unrolls == sum(t.received.values()) + t.lost()
+    assert t.rejected() == 0 and t.counters["seq_restarts"] == 0
+    log = (tmp_path / "reach-tiny" / "log.txt").read_text()
+    assert f"lost unrolls (sequence gaps) {proxy.dropped}" in log

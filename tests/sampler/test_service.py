@@ -89,7 +89,10 @@ def test_service_survives_bad_input_and_counts_it(service):
         (wire.encode(wire.ValueReportMsg(params=nan_params, values=np.ones(1, np.float32))), "nonfinite"),
         (wire.encode(wire.ValueReportMsg(params=np.array([[9.0, 1.0]], np.float32), values=np.ones(1, np.float32))),
          "invalid"),
-        (wire.encode(wire.DrawRequestMsg(n=0)), "invalid"),
+        (wire.encode(wire.DrawRequestMsg(n=0)), "out_of_range"),  # refused by the wire rule (n >= 1)
+        (wire.encode(wire.DrawRequestMsg(n=CFG.max_draw + 1)), "invalid"),  # by the sampler's own limit
+        (wire.encode(wire.ValueReportMsg(params=np.ones((1, 3), np.float32), values=np.ones(1, np.float32))),
+         "bad_shape"),  # n_params is pinned to the space's 2
         (wire.encode(wire.OkMsg(info="not a request")), "unknown_kind"),
     ]
     for frames, kind in cases:
@@ -105,8 +108,9 @@ def test_service_survives_bad_input_and_counts_it(service):
         stats = client.stats()
     finally:
         client.close()
-    assert stats["requests/rejected"] == 9
+    assert stats["requests/rejected"] == 11
     assert stats["requests/rejected/malformed"] == 2 and stats["requests/rejected/invalid"] == 4
+    assert stats["requests/rejected/out_of_range"] == 1 and stats["requests/rejected/bad_shape"] == 1
     assert stats["requests/rejected/version"] == 1 and stats["requests/rejected/nonfinite"] == 1
     assert stats["vm/pending_pairs"] == 0
 
@@ -156,5 +160,77 @@ def test_an_internal_error_is_replied_and_counted_not_fatal(service, monkeypatch
         monkeypatch.undo()
         assert client.draw(2).params.shape == (2, 2)
         assert client.stats()["requests/rejected/internal"] == 1
+    finally:
+        client.close()
+
+
+def test_a_resent_report_is_stored_once(service, monkeypatch):
+    """The Lazy Pirate client resends a report whose reply it did not get in time; the service
+    had stored the first one. The pairs must count once (keyed like `tick`: by the report's id)."""
+    real_report = service.sampler.report
+    calls = []
+
+    def slow_first_report(params, values):
+        calls.append(len(values))
+        m = real_report(params, values)
+        if len(calls) == 1:
+            time.sleep(0.8)  # longer than the client's timeout: its first try times out
+        return m
+
+    monkeypatch.setattr(service.sampler, "report", slow_first_report)
+    client = SamplerClient(service.endpoint, timeout_s=0.3, retries=5)
+    try:
+        d = client.draw(6)
+        client.report(d.params, np.linspace(1, 2, 6))
+        assert client.rpc.reconnects >= 1  # it did resend
+        stats = client.stats()
+        assert calls == [6]  # the resend was not stored again
+        assert stats["vm/pending_pairs"] == 6 and stats["reports/duplicates"] >= 1
+        client.report(d.params, np.linspace(1, 2, 6))  # a new report (new id) is stored
+        assert client.stats()["vm/pending_pairs"] == 12
+    finally:
+        client.close()
+
+
+def test_a_report_resent_by_hand_is_applied_once_and_a_new_id_is_not_deduplicated(service):
+    report = wire.ValueReportMsg(params=np.ones((3, 2), np.float32), values=np.ones(3, np.float32), report_id="abc-1")
+    frames = [bytes(f) for f in wire.encode(report)]
+    for _ in range(3):
+        assert isinstance(raw_request(service.endpoint, frames), wire.OkMsg)
+    other = [bytes(f) for f in wire.encode(wire.ValueReportMsg(params=report.params, values=report.values))]
+    for _ in range(2):  # no id: every copy is stored (what an old client sends)
+        assert isinstance(raw_request(service.endpoint, other), wire.OkMsg)
+    assert service.sampler.pending_pairs == 3 + 6
+    assert service.duplicate_reports == 2
+
+
+def test_a_bad_state_is_refused_whole_and_changes_nothing(service):
+    client = SamplerClient(service.endpoint, timeout_s=5.0)
+    try:
+        state = client.get_state()
+        client.draw(7)  # move the cursor
+        baseline = service.sampler.state_dict()
+        bad_states = []
+        for edit in (
+            lambda s: s["meta"].update(cursor=10**9),  # would make draw loop forever
+            lambda s: s["meta"].update(generation=-4),
+            lambda s: s["meta"].pop("rng"),
+            lambda s: s["meta"].update(vm={"hidden": "nope"}),
+            lambda s: s["arrays"].update(order=np.zeros(len(s["arrays"]["order"]), np.int64)),
+            lambda s: s["arrays"].update(buffer=np.zeros((0, 2))),
+        ):
+            bad = {"meta": dict(state["meta"]), "arrays": dict(state["arrays"])}
+            edit(bad)
+            bad_states.append(bad)
+        for bad in bad_states:
+            with pytest.raises(wire.WireError) as err:
+                client.set_state(bad)
+            assert err.value.kind == "invalid", err.value
+        after = service.sampler.state_dict()
+        assert after["meta"] == baseline["meta"]
+        for k, v in baseline["arrays"].items():
+            np.testing.assert_array_equal(after["arrays"][k], v)
+        assert client.draw(3).params.shape == (3, 2)
+        assert client.stats()["requests/rejected/invalid"] == len(bad_states)
     finally:
         client.close()

@@ -132,7 +132,7 @@ def test_state_of_another_space_is_refused():
 
 
 def test_state_resumed_on_a_wider_or_narrower_box_keeps_its_shapes_inside_the_box():
-    """A shape curriculum resumes a run with `--task.shape-box-scale` changed."""
+    """A shape curriculum resumes a run with `--task.body.shape-box-scale` changed."""
     wide = ShapeSampler(FAST, SPACE)
     run(wide, range(1, 4))
     narrow_space = ParamSpace(names=SPACE.names, low=(0.9, 0.9), high=(1.1, 1.1))

@@ -21,7 +21,8 @@ from common.motion.import_deepmimic import HUMANOID_JOINTS
 from common.motion.library import MotionLibrary, clips_for, import_entry, import_source
 from common.motion.manifest import load_manifest
 from common.motion.reference import CharacterMotion
-from common.motion.retarget import contact_phases, foot_heights
+from common.motion.retarget import contact_phases
+from common.motion.root_height import foot_heights
 
 from .conftest import CMU, MASS, base_character
 

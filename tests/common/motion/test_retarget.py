@@ -9,7 +9,8 @@ import pytest
 from common.motion.import_bvh import load_bvh
 from common.motion.import_deepmimic import load_deepmimic
 from common.motion.reference import CharacterMotion
-from common.motion.retarget import RetargetConfig, contact_phases, foot_heights, play_on, root_offsets
+from common.motion.retarget import RetargetConfig, contact_phases, play_on
+from common.motion.root_height import foot_heights, root_offsets
 
 from .conftest import DEEPMIMIC, MASS, base_character
 
@@ -129,7 +130,7 @@ def test_foot_tracks_trot_on_unequal_legs_keeps_its_root_and_feet():
 
 
 def test_bend_side_bounds_narrow_only_two_sided_hinges_the_clip_bends_one_way():
-    from common.motion.retarget import bend_side_bounds
+    from common.motion.leg_solve import bend_side_bounds
 
     angles = np.array([[-0.9, 0.0, -0.3, 0.0, 0.2],
                        [0.0, 0.9, 0.4, 0.0, 0.5],

@@ -13,14 +13,15 @@ import pytest
 
 from common.tasks import executor_rewards as rw
 from common.tasks.base import TaskConfig
+from common.tasks.body_config import BodyConfig
 from common.tasks.executor import ExecutorEnv, effort_factors, executor_clips, humanoid_clips
 from common.tasks.executor_config import ExecutorConfig
 from common.tasks.executor_obs import BodyKin, agent_features, observation, target_root_pose
 from common.tasks.observations import yaw_matrix
 from common.tasks.registry import make_env
 
-CFG = TaskConfig(name="executor", control_hz=60.0, sim_hz=240.0, episode_s=5.0, parameterization="height_thickness",
-                 vary_shape=False, executor=ExecutorConfig())
+CFG = TaskConfig(name="executor", control_hz=60.0, sim_hz=240.0, episode_s=5.0,
+                 body=BodyConfig(parameterization="height_thickness", vary_shape=False), executor=ExecutorConfig())
 
 
 def cfg_with(**changes) -> TaskConfig:

@@ -11,6 +11,8 @@ import numpy as np
 import pytest
 
 from common.tasks.base import TaskConfig
+from common.tasks.body_config import BodyConfig
+from common.tasks.imitate_config import ImitateConfig
 from common.tasks.observations import heading, quat_to_mat, yaw_matrix
 from common.tasks.registry import make_env
 
@@ -32,7 +34,7 @@ def test_episode_starts_on_the_reference() -> None:
 
 @pytest.mark.parametrize("normalize", [True, False])
 def test_target_velocity_follows_leg_length_only_with_normalization(normalize: bool) -> None:
-    env = make_env(dataclasses.replace(CFG, reward_normalization=normalize), seed=0)
+    env = make_env(dataclasses.replace(CFG, imitate=dataclasses.replace(CFG.imitate, reward_normalization=normalize)), seed=0)
     env.reset(0, _shape(env, global_z=0.6))
     short, norm = np.linalg.norm(env.target_velocity()), env.norm
     assert norm.leg_ratio < 0.8
@@ -73,7 +75,7 @@ def test_horizon_truncates_without_terminating() -> None:
 
 
 def test_swimmer_far_from_its_reference_terminates() -> None:
-    env = make_env(TaskConfig(name="fish", control_hz=30.0, sim_hz=480.0, max_root_deviation=1.0), seed=0)
+    env = make_env(TaskConfig(name="fish", control_hz=30.0, sim_hz=480.0, imitate=ImitateConfig(max_root_deviation=1.0)), seed=0)
     env.reset(0, env.space.default_array)
     env.data.qpos[0] += 3.0 * env.length_m
     mujoco.mj_forward(env.model, env.data)
@@ -110,7 +112,7 @@ def test_pd_gains_follow_the_torque_limits_so_a_small_body_is_not_saturated() ->
         return float(np.mean(at_limit))
 
     fixed = make_env(CFG, seed=0)
-    scaled = make_env(dataclasses.replace(CFG, pd_gains_follow_torque=True), seed=0)
+    scaled = make_env(dataclasses.replace(CFG, imitate=dataclasses.replace(CFG.imitate, pd_gains_follow_torque=True)), seed=0)
     small = fixed.space.low_array
     assert saturated(fixed, small) > 0.1
     assert saturated(scaled, small) < 0.02
@@ -125,7 +127,7 @@ def test_pd_gains_follow_the_torque_limits_so_a_small_body_is_not_saturated() ->
 
 
 def test_fixed_shape_space_is_the_base_shape() -> None:
-    env = make_env(dataclasses.replace(CFG, vary_shape=False), seed=0)
+    env = make_env(dataclasses.replace(CFG, body=BodyConfig(vary_shape=False)), seed=0)
     np.testing.assert_array_equal(env.space.low_array, env.space.high_array)
     assert env.obs_dim == make_env(CFG, seed=0).obs_dim
 
@@ -134,22 +136,22 @@ def test_shape_box_scale_shrinks_the_box_toward_the_base_shape() -> None:
     from common.tasks.imitate import ImitateEnv
 
     full = ImitateEnv.param_space(CFG)
-    half = ImitateEnv.param_space(dataclasses.replace(CFG, shape_box_scale=0.5))
+    half = ImitateEnv.param_space(dataclasses.replace(CFG, body=BodyConfig(shape_box_scale=0.5)))
     d = full.default_array
     np.testing.assert_allclose(half.low_array, d + 0.5 * (full.low_array - d))
     np.testing.assert_allclose(half.high_array, d + 0.5 * (full.high_array - d))
     np.testing.assert_array_equal(half.default_array, d)
-    with pytest.raises(ValueError, match="shape_box_scale = 1.5 must be in"):
-        ImitateEnv.param_space(dataclasses.replace(CFG, shape_box_scale=1.5))
+    with pytest.raises(ValueError, match=r"--task.body.shape-box-scale = 1.5 is not allowed: give a finite number in \(0, 1\]"):
+        BodyConfig(shape_box_scale=1.5)
 
 
-def test_an_unknown_root_height_rule_is_refused_when_the_env_is_built() -> None:
-    with pytest.raises(ValueError, match=re.escape("root_height 'stilts' is not one of contact_set | foot_tracks")):
-        make_env(dataclasses.replace(CFG, retarget_root_height="stilts"), seed=0)
+def test_an_unknown_root_height_rule_is_refused_by_its_flag() -> None:
+    with pytest.raises(ValueError, match=re.escape("--task.imitate.retarget-root-height = 'stilts': give contact_set or foot_tracks")):
+        ImitateConfig(retarget_root_height="stilts")
 
 
 def test_task_parameters_rotate_and_speed_up_the_reference() -> None:
-    cfg = dataclasses.replace(CFG, task_params=("speed", "heading"))
+    cfg = dataclasses.replace(CFG, imitate=dataclasses.replace(CFG.imitate, task_params=("speed", "heading")))
     env = make_env(cfg, seed=0)
     assert env.space.names[-2:] == ("speed", "heading")
     params = env.space.default_array.copy()

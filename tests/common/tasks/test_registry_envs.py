@@ -7,6 +7,8 @@ import numpy as np
 import pytest
 
 from common.tasks.base import TaskConfig
+from common.tasks.body_config import BodyConfig
+from common.tasks.imitate_config import ImitateConfig
 from common.tasks.registry import TASKS, make_env, task_clips, task_space
 
 SHAPE_TASKS = [name for name in TASKS if name != "reach"]
@@ -16,9 +18,10 @@ def _cfg(name: str) -> TaskConfig:
     if name == "reach":
         return TaskConfig(name=name)
     if name == "executor":
-        return TaskConfig(name=name, control_hz=60.0, sim_hz=240.0, episode_s=5.0, vary_shape=False,
-                          parameterization="height_thickness")
-    return TaskConfig(name=name, control_hz=30.0, sim_hz=480.0, episode_s=30.0, max_root_deviation=1.0)
+        return TaskConfig(name=name, control_hz=60.0, sim_hz=240.0, episode_s=5.0, 
+                          body=BodyConfig(parameterization="height_thickness", vary_shape=False))
+    return TaskConfig(name=name, control_hz=30.0, sim_hz=480.0, episode_s=30.0,
+                      imitate=ImitateConfig(max_root_deviation=1.0))
 
 
 @pytest.mark.parametrize("name", sorted(TASKS))

@@ -15,6 +15,7 @@ import pytest
 
 from common.tasks import pose_packet, pose_sender
 from common.tasks.base import TaskConfig
+from common.tasks.body_config import BodyConfig
 from common.tasks.executor_config import ExecutorConfig
 from common.tasks.observations import heading, quat_to_mat
 from common.tasks.pose_blend import PoseMath
@@ -25,8 +26,8 @@ from common.tasks.scheduler_stitch import StitchScheduler
 from common.tasks.scheduler_video import VideoScheduler
 from common.tasks.schedulers import DatasetScheduler
 
-CFG = TaskConfig(name="executor", control_hz=60.0, sim_hz=240.0, episode_s=5.0, parameterization="height_thickness",
-                 vary_shape=False, executor=ExecutorConfig())
+CFG = TaskConfig(name="executor", control_hz=60.0, sim_hz=240.0, episode_s=5.0,
+                 body=BodyConfig(parameterization="height_thickness", vary_shape=False), executor=ExecutorConfig())
 WALK = "humanoid3d_walk"
 
 
@@ -341,7 +342,7 @@ def test_video_rejects_bad_packets_and_keeps_serving(env):
 
 
 def test_send_poses_cli_and_keypoint_files(env, tmp_path):
-    from common.cli import COMMANDS
+    from learner.cli import COMMANDS
 
     assert COMMANDS["send-poses"][0] == "common.tasks.pose_sender"
     with VideoScheduler(env.ref_model, env.dt) as s:

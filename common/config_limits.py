@@ -1,0 +1,136 @@
+"""Allowed ranges of configuration values, declared beside each config dataclass.
+
+Each config class lists its numeric fields' limits in `LIMITS` and its flag prefix in
+`FLAG_PREFIX`, is decorated `@validated` (under `@dataclass`) and calls `check_limits(self)`
+from its `validate`, so a value from a preset or a checkpoint's saved config is checked where
+it enters. The command line parses with the checks deferred (`deferred_checks`) and then runs
+`validate_tree` itself, so a bad flag is one line naming it, not a traceback or a tyro box:
+
+    LIMITS: ClassVar[dict[str, Limit]] = {"lr": above(0), "gamma": between(0, 1, lo_open=True)}
+
+A violation raises ValueError naming the flag, the value and what is allowed:
+`--ppo.lr = -0.001 is not allowed: give a finite number > 0`. NaN and infinities are refused
+for every limited field. Tuples are checked element by element; None (an optional field left
+unset) and strings, booleans and Literals (tyro checks those) are not limited here.
+`tests/common/test_config_limits.py` holds every numeric field of `RunConfig` to having one.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import contextvars
+import dataclasses
+import math
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Limit:
+    lo: float | None = None
+    hi: float | None = None
+    lo_open: bool = False
+    hi_open: bool = False
+    integer: bool = False
+    """Only used in the message: "an integer" instead of "a finite number"."""
+
+    def allows(self, x: float) -> bool:
+        if not math.isfinite(x):
+            return False
+        if self.lo is not None and (x <= self.lo if self.lo_open else x < self.lo):
+            return False
+        return not (self.hi is not None and (x >= self.hi if self.hi_open else x > self.hi))
+
+    def describe(self) -> str:
+        kind = "an integer" if self.integer else "a finite number"
+        if self.lo is not None and self.hi is not None:
+            return f"{kind} in {'(' if self.lo_open else '['}{self.lo:g}, {self.hi:g}{')' if self.hi_open else ']'}"
+        if self.lo is not None:
+            return f"{kind} {'>' if self.lo_open else '>='} {self.lo:g}"
+        if self.hi is not None:
+            return f"{kind} {'<' if self.hi_open else '<='} {self.hi:g}"
+        return kind
+
+
+def at_least(lo: float, integer: bool = True) -> Limit:
+    return Limit(lo=lo, integer=integer)
+
+
+def above(lo: float) -> Limit:
+    return Limit(lo=lo, lo_open=True)
+
+
+def between(lo: float, hi: float, lo_open: bool = False, hi_open: bool = False, integer: bool = False) -> Limit:
+    return Limit(lo, hi, lo_open, hi_open, integer)
+
+
+FINITE = Limit()
+
+
+def flag(prefix: str, name: str) -> str:
+    """The command-line flag of a field: `--ppo.kl-stop`."""
+    return "--" + (prefix + "." if prefix else "") + name.replace("_", "-")
+
+
+def check_limits(obj) -> None:
+    """ValueError naming the first field of `obj` outside its `LIMITS` entry."""
+    prefix = getattr(obj, "FLAG_PREFIX", "")
+    for name, limit in obj.LIMITS.items():
+        value = getattr(obj, name)
+        if value is None:
+            continue
+        values = value if isinstance(value, (tuple, list)) else (value,)
+        for x in values:
+            if isinstance(x, bool) or not isinstance(x, (int, float)) or not limit.allows(float(x)):
+                each = " each" if isinstance(value, (tuple, list)) else ""
+                raise ValueError(f"{flag(prefix, name)} = {value!r} is not allowed: give{each} {limit.describe()}")
+
+
+def unlimited_numeric_fields(cls: type) -> list[str]:
+    """Numeric fields of a config class (int, float, tuples of them) without a LIMITS entry."""
+    import typing
+
+    hints = typing.get_type_hints(cls)
+    limits = getattr(cls, "LIMITS", {})
+    out = []
+    for f in dataclasses.fields(cls):
+        text = str(hints[f.name])
+        numeric = hints[f.name] in (int, float) or any(k in text for k in ("int", "float")) and "str" not in text
+        if numeric and not dataclasses.is_dataclass(hints[f.name]) and f.name not in limits:
+            out.append(f.name)
+    return out
+
+
+_DEFERRED = contextvars.ContextVar("morphmimic_deferred_config_checks", default=False)
+
+
+def validated(cls: type) -> type:
+    """Class decorator (place it under `@dataclass`): construction runs `cls.validate` unless
+    inside `deferred_checks()`."""
+
+    def __post_init__(self) -> None:
+        if not _DEFERRED.get():
+            self.validate()
+
+    cls.__post_init__ = __post_init__
+    return cls
+
+
+@contextlib.contextmanager
+def deferred_checks():
+    """Build configs without validating them (a parser building nested dataclasses)."""
+    token = _DEFERRED.set(True)
+    try:
+        yield
+    finally:
+        _DEFERRED.reset(token)
+
+
+def validate_tree(cfg) -> None:
+    """Validate a config and every config nested in it, innermost first (the ValueError of the
+    first bad value)."""
+    for f in dataclasses.fields(cfg):
+        child = getattr(cfg, f.name)
+        if dataclasses.is_dataclass(child) and not isinstance(child, type):
+            validate_tree(child)
+    if hasattr(cfg, "validate"):
+        cfg.validate()

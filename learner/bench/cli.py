@@ -1,0 +1,28 @@
+"""`morphmimic bench <name>`: benchmark scripts, each comparing two things in one run."""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+BENCHMARKS: dict[str, tuple[str, str]] = {
+    "throughput": ("learner.bench.throughput", "end-to-end collection vs pure simulation, learner share, transport bytes/s"),
+    "learner": ("learner.bench.learner_update", "PPO update per minibatch step: the reference loop vs PPO.update, same data"),
+    "characters": ("common.characters.bench", "build/compile per shape, on-the-fly change, sim cost per control step"),
+    "episodes": ("learner.bench.episodes", "per shape task: reset on a new body vs a control step, and the resets' share"),
+    "sampler": ("sampler.bench", "MCMC refill time vs a policy iteration, draw latency through the socket"),
+    "soak": ("learner.bench.soak", "train while injecting faults; counts lost unrolls"),
+    "curve": ("learner.bench.curve", "the unroll stream and a sampler round trip with CURVE vs plain sockets"),
+}
+
+
+def main(argv: list[str]) -> int:
+    if not argv or argv[0] in ("-h", "--help"):
+        print("usage: morphmimic bench <name> [options]\n\nbenchmarks:")
+        for name, (_, text) in BENCHMARKS.items():
+            print(f"  {name:<11} {text}")
+        return 0
+    if argv[0] not in BENCHMARKS:
+        print(f"morphmimic bench: unknown benchmark {argv[0]!r}; choose one of {', '.join(BENCHMARKS)}", file=sys.stderr)
+        return 2
+    return int(importlib.import_module(BENCHMARKS[argv[0]][0]).main(argv[1:]) or 0)

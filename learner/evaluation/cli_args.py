@@ -1,0 +1,114 @@
+"""argparse `type=` converters of the evaluation commands (evaluate, ablation, robustness,
+learning_curve, morph_demo): each turns bad input into a usage error that names the value and what is allowed,
+before any checkpoint is loaded or any episode run."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+
+from learner.evaluation.eval_core import check_box_scale
+
+
+def _number(text: str, kind: type, allowed: str) -> float:
+    try:
+        value = kind(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not {'an integer' if kind is int else 'a number'}; "
+                                         f"it must be {allowed}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{text!r} must be {allowed}")
+    return value
+
+
+def positive_int(text: str) -> int:
+    """An integer >= 1 (shape counts, worker counts, strides)."""
+    value = _number(text, int, "an integer >= 1")
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} must be an integer >= 1")
+    return value
+
+
+def seed(text: str) -> int:
+    """A random seed: an integer >= 0 (numpy's generators refuse negative seeds)."""
+    value = _number(text, int, "an integer >= 0")
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be an integer >= 0")
+    return value
+
+
+def percent(text: str) -> float:
+    """A percentage in [0, 100] (a fall-down target)."""
+    value = _number(text, float, "a number in [0, 100]")
+    if not 0.0 <= value <= 100.0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be a number in [0, 100]")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """A finite number > 0 (episode lengths in seconds)."""
+    value = _number(text, float, "a finite number > 0")
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be a finite number > 0")
+    return value
+
+
+def port(text: str) -> int:
+    """A TCP/UDP port: an integer in [0, 65535] (0: the system picks a free one)."""
+    value = _number(text, int, "an integer in [0, 65535]")
+    if not 0 <= value <= 65535:
+        raise argparse.ArgumentTypeError(f"{text!r} must be an integer in [0, 65535]")
+    return value
+
+
+def finite_float(text: str) -> float:
+    """Any finite number (the morph strength: negative mirrors the schedule, 0 keeps the base shape)."""
+    return _number(text, float, "a finite number")
+
+
+def box_scale(text: str) -> float:
+    """A float in (0, 1]: the shape box shrunk toward the base shape (1: the whole box)."""
+    value = _number(text, float, "in (0, 1] (1: the whole box)")
+    try:
+        return check_box_scale(value)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"{text!r}: {exc}") from None
+
+
+def morph_schedule(text: str) -> list[tuple[float, dict[str, float]]]:
+    """JSON keyframes `[[time_s, {parameter: value}], ...]` with times >= 0 and strictly
+    increasing (the morph interpolates between them) and finite values. Parameter names are
+    checked against the checkpoint's shape space when the schedule is used."""
+    allowed = 'JSON keyframes [[time_s, {"parameter": value}], ...] with times >= 0 strictly increasing'
+    try:
+        raw = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise argparse.ArgumentTypeError(f"{text!r} is not JSON ({exc.msg}); it must be {allowed}") from None
+    if not isinstance(raw, list) or not raw:
+        raise argparse.ArgumentTypeError(f"{text!r} must be a non-empty list of {allowed}")
+    keys: list[tuple[float, dict[str, float]]] = []
+    for k in raw:
+        ok = isinstance(k, list) and len(k) == 2 and isinstance(k[1], dict)
+        t = k[0] if ok else None
+        if not ok or isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t) or t < 0:
+            raise argparse.ArgumentTypeError(f"keyframe {json.dumps(k)} in {text!r}: each must be [time_s >= 0, {{...}}]")
+        for name, v in k[1].items():
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise argparse.ArgumentTypeError(f"keyframe {json.dumps(k)}: {name} = {v!r} must be a finite number")
+        if keys and t <= keys[-1][0]:
+            raise argparse.ArgumentTypeError(f"keyframe times {[kk[0] for kk in keys] + [t]} must be strictly increasing")
+        keys.append((float(t), {str(n): float(v) for n, v in k[1].items()}))
+    return keys
+
+
+def clip_source(text: str) -> str:
+    """An executor clip to evaluate: a humanoid clip id, a clip file (.npz, .bvh, DeepMimic
+    .txt/.json) or a folder of `.npz` clips (`learner.evaluation.executor_eval.classify_clip_value`)."""
+    from learner.evaluation.executor_eval import ClipSelectionError, classify_clip_value
+
+    try:
+        classify_clip_value(text)
+    except ClipSelectionError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text

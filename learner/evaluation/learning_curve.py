@@ -1,0 +1,190 @@
+"""The learning curve of a run (issue 6 item 7): fall-down % and task achievement of every
+checkpoint on the same random shapes, against environment steps and wall time.
+
+    python -m learner.evaluation.learning_curve --ckpt-dir runs/history/lower_biped/ckpt --shapes 100 --episode-s 10
+
+Wall time of a checkpoint: the training seconds it records (summed over every session of a
+resumed run, so pauses between sessions do not count). Checkpoints written before that was
+recorded fall back to the file's modification time minus `--start` (default: the modification
+time of the run's `config.json`, written when training starts; pass the run directory with
+`--run-dir`). Writes `curve.json` and `curve.png` into `--out` and prints a table with the
+first checkpoint below `--target` fall-down %. Rows of an earlier `curve.json` in `--out` made
+with the same shapes, episode length, seed and box are reused, so a growing run is evaluated only
+on its new checkpoints, and kept when their checkpoints are gone (a run keeps only its newest
+`keep_checkpoints`): the curve is the run's history. An earlier curve made with other settings is
+refused, not overwritten.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import numpy as np  # noqa: E402
+
+from learner import checkpoint
+
+from learner.evaluation import cli_args, eval_core  # noqa: E402
+
+
+def main(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(prog="python -m learner.evaluation.learning_curve", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--ckpt-dir", required=True, help="directory of <iteration>/state.pt checkpoints")
+    p.add_argument("--run-dir", default="", help="the run directory (its config.json time is the start)")
+    p.add_argument("--start", type=float, default=0.0, help="training start, Unix time (overrides --run-dir)")
+    p.add_argument("--shapes", type=cli_args.positive_int, default=100)
+    p.add_argument("--episode-s", type=cli_args.positive_float, default=10.0)
+    p.add_argument("--seed", type=cli_args.seed, default=2019)
+    p.add_argument("--box-scale", type=cli_args.box_scale, default=1.0,
+                   help="shapes from the box shrunk toward the base shape (a curriculum's progress); 1: the whole box")
+    p.add_argument("--every", type=cli_args.positive_int, default=1, help="evaluate every n-th checkpoint (the last always)")
+    p.add_argument("--workers", type=cli_args.positive_int, default=1)
+    p.add_argument("--target", type=cli_args.percent, default=20.0, help="fall-down %% to report reaching")
+    p.add_argument("--out", default="", help="output directory (default: <ckpt-dir>/../curve)")
+    args = p.parse_args(argv)
+    ckpts = checkpoint.list_checkpoints(Path(args.ckpt_dir))
+    if not ckpts:
+        raise SystemExit(f"--ckpt-dir {args.ckpt_dir}: no checkpoints")
+    ckpts = every_nth(ckpts, args.every)
+    start = args.start or (os.path.getmtime(Path(args.run_dir) / "config.json") if args.run_dir else 0.0)
+    out = Path(args.out) if args.out else Path(args.ckpt_dir).parent / "curve"
+    out.mkdir(parents=True, exist_ok=True)
+    done, stale = _earlier_rows(out / "curve.json", args)
+    rows = dict(done)
+    for it, row in stale.items():  # kept unless its checkpoint is measured again below
+        rows[it] = {**row, "fall_down_pct_extreme10": None}
+    from common.tasks.registry import make_env
+
+    fallback_wall = _wall_from_file_times(checkpoint.list_checkpoints(Path(args.ckpt_dir)), start)
+    for c in ckpts:
+        if int(c.name) in done:  # checkpoint directories are named by iteration: skip without loading
+            continue
+        loaded = eval_core.load(c)
+        env = make_env(eval_core.eval_task(loaded.cfg.task, args.episode_s, args.box_scale), seed=0)
+        shapes = eval_core.eval_shapes(env.space, args.shapes, args.seed)
+        res = eval_core.evaluate(loaded, shapes, args.episode_s, args.seed, args.workers, box_scale=args.box_scale)
+        s = eval_core.summarize(res, env.space, getattr(env, "n_shape", env.space.dim))
+        wall = float(loaded.state.get("train_seconds", float("nan")))
+        if not np.isfinite(wall):
+            wall = fallback_wall.get(c, float("nan"))
+        wall = wall if np.isfinite(wall) else None  # JSON null: unknown
+        row = {"iteration": int(loaded.state["iteration"]), "env_steps": int(loaded.state["env_steps"]), "wall_s": wall, **s}
+        rows[row["iteration"]] = row
+        print(f"[curve] it {row['iteration']:5d} steps {row['env_steps']:>10,d} wall {_minutes(wall)} min | "
+              f"fall-down {s['fall_down_pct']:5.1f}% task {s['task_achievement']:6.1f} length {s['mean_seconds']:5.2f} s",
+              flush=True)
+    rows = [rows[i] for i in sorted(rows)]
+    (out / "curve.json").write_text(json.dumps({"shapes": args.shapes, "episode_s": args.episode_s, "seed": args.seed,
+                                                "box_scale": args.box_scale, "extreme": EXTREME, "rows": rows},
+                                               indent=1) + "\n")
+    _plot(rows, out / "curve.png", args)
+    hit = next((r for r in rows if r["fall_down_pct"] <= args.target), None)
+    if hit:
+        print(f"[curve] reached {args.target:g}% fall-down at {hit['env_steps']:,d} env steps, {_minutes(hit['wall_s'])} min")
+    else:
+        best = min(rows, key=lambda r: r["fall_down_pct"])
+        print(f"[curve] never reached {args.target:g}%: best {best['fall_down_pct']:.1f}% at {best['env_steps']:,d} steps")
+    return 0
+
+
+def _wall_from_file_times(ckpts: list[Path], start: float) -> dict[Path, float]:
+    """Training seconds at each checkpoint from file modification times, for checkpoints that
+    do not record them (an estimate; a checkpoint's own record is exact). The gaps between
+    consecutive checkpoints count, except that a gap over 3x the run's median seconds per
+    iteration times the iterations between them (the pause between two sessions of a resumed
+    run) counts at the median rate, and so does a negative gap (a checkpoint copied or restored
+    later than the ones after it: its file time says nothing about training). The first checkpoint
+    counts from `start` when that is earlier (a resumed run rewrites config.json), else at the
+    median rate."""
+    if len(ckpts) < 2:
+        return {}
+    times = np.array([os.path.getmtime(c / checkpoint.FILE) for c in ckpts])
+    iters = np.array([int(c.name) for c in ckpts], dtype=float)
+    gaps, steps = np.diff(times), np.maximum(np.diff(iters), 1.0)
+    forward = gaps > 0
+    if not forward.any():
+        return {}
+    per_iteration = float(np.median(gaps[forward] / steps[forward]))
+    first = times[0] - start if start and 0 < times[0] - start else per_iteration * iters[0]
+    expected = per_iteration * steps
+    wall = np.concatenate([[first], np.where(~forward | (gaps > 3.0 * expected), expected, gaps)]).cumsum()
+    return dict(zip(ckpts, wall.tolist()))
+
+
+def _minutes(seconds: float | None) -> str:
+    return "     ?" if seconds is None or not np.isfinite(seconds) else f"{seconds / 60:6.1f}"
+
+
+def every_nth(ckpts: list[Path], n: int) -> list[Path]:
+    """Every n-th checkpoint (and the last), chosen on the iteration grid rather than by list
+    position: the first checkpoint in each span of n x (the median iteration gap), so the choice
+    stays the same when the run deletes its oldest checkpoints and earlier rows stay reusable."""
+    if n == 1:  # every checkpoint, also one saved off the grid (at a stop)
+        return list(ckpts)
+    its = np.array([int(c.name) for c in ckpts])
+    gap = float(np.median(np.diff(its))) if len(its) > 1 else 1.0
+    bucket = (its // max(1.0, n * gap)).astype(np.int64)
+    return [c for i, c in enumerate(ckpts) if i == 0 or bucket[i] != bucket[i - 1] or i == len(ckpts) - 1]
+
+
+# Version of the extreme-10% column: "base" since it ranks shapes by their distance from the base
+# shape (`eval_core.extremeness`); curves written before then ranked them from the box centre.
+EXTREME = "base"
+PROTOCOL = ("shapes", "episode_s", "seed", "box_scale")
+
+
+def _earlier_rows(path: Path, args) -> tuple[dict[int, dict], dict[int, dict]]:
+    """Rows of an earlier curve.json in `--out`, iteration -> row: (current, stale). Stale rows
+    were measured before the extreme-10% ranking changed: their checkpoints are measured again,
+    and rows whose checkpoints are gone keep their fall-down % with no extreme-10% figure. A file
+    made with other shapes, episode length, seed or box is refused rather than overwritten: its
+    rows may be the only record of checkpoints the run has since deleted."""
+    if not path.exists():
+        return {}, {}
+    try:
+        earlier = json.loads(path.read_text())
+        earlier = {"box_scale": 1.0, **earlier}  # curves from before --box-scale used the whole box
+        rows = {int(r["iteration"]): r for r in earlier["rows"]}
+    except (ValueError, KeyError, TypeError) as exc:
+        raise SystemExit(f"{path}: unreadable curve ({exc}); move it away or choose another --out") from None
+    differ = {k: (earlier.get(k), getattr(args, k)) for k in PROTOCOL if earlier.get(k) != getattr(args, k)}
+    if differ:
+        raise SystemExit(f"{path} was made with " + ", ".join(f"{k} {a!r}" for k, (a, _) in differ.items())
+                         + "; this call asks for " + ", ".join(f"{k} {b!r}" for k, (_, b) in differ.items())
+                         + ": choose another --out (its rows are kept)")
+    return (rows, {}) if earlier.get("extreme") == EXTREME else ({}, rows)
+
+
+def _plot(rows: list[dict], path: Path, args) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    steps = np.array([r["env_steps"] for r in rows]) / 1e6
+    fig, ax = plt.subplots(figsize=(6, 4), dpi=120)
+    ax.plot(steps, [r["fall_down_pct"] for r in rows], "o-", label="fall-down %")
+    extreme = [np.nan if r.get("fall_down_pct_extreme10") is None else r["fall_down_pct_extreme10"] for r in rows]
+    if np.isfinite(extreme).any():  # curves kept from before the ranking changed have none
+        ax.plot(steps, extreme, "s--", label="fall-down % (extreme 10%, from the base shape)")
+    ax.axhline(args.target, color="gray", lw=0.8, ls=":")
+    ax.set_xlabel("environment steps (M)")
+    ax.set_ylabel("%")
+    ax.set_ylim(0, 100)
+    box = "" if args.box_scale == 1.0 else f" (box x{args.box_scale:g})"
+    ax.set_title(f"{args.shapes} random shapes{box}, {args.episode_s:g} s episodes", fontsize=9)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    import sys
+
+    raise SystemExit(main(sys.argv[1:]))

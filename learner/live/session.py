@@ -1,0 +1,287 @@
+"""A live session: one environment of a trained checkpoint stepped by one agent, that can be
+steered while it runs. `morphmimic play` and the browser studio are thin clients of it.
+
+The agent is the checkpoint's policy (mean action), or, for comparison, zero actions or
+uniform random actions in [-1, 1]. What can change while it runs:
+
+- the body (shape controllers, Won & Lee 2019 section 3 "shape change on the fly"):
+  `set_shape` morphs it through `ImitateEnv.set_shape`, the state carried over;
+- the target frames (the executor, UniCon 2020 "Schedulers"): `use_scheduler` swaps the
+  executor's scheduler (dataset, stitch, keyboard, video) without touching the policy;
+- perturbations: `throw_projectile` (the executor's balls; a shape controller gets a push of
+  the same momentum instead), `scale_mass` (heavier or lighter, UniCon Table 2);
+- `reset`; a fallen shape controller, or an executor that lost its target (`LOST_M`), is
+  reset by itself when `auto_reset` is on.
+
+Every value a user hands in (shape values, mass factors, clip names, speeds) is checked here
+and refused with a `ValueError` that names it and what is allowed; the session keeps running.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import mujoco
+import numpy as np
+import torch
+
+from learner.evaluation import eval_core
+
+AGENTS = ("policy", "zero", "random")
+"""Who acts: the checkpoint's policy (mean action), zero actions, or uniform random actions."""
+LOST_M = 0.5
+"""The executor has lost its target when the mean body-position error exceeds this (PHC's
+success criterion, Luo et al. 2023); the session then resets (with `auto_reset`)."""
+BODY_PRESETS: tuple[tuple[str, dict[str, float]], ...] = (
+    ("tall", {"global_z": 1.4}), ("short", {"global_z": 0.6}), ("wide", {"global_x": 1.4, "global_y": 1.4}),
+    ("long legs", {"leg_length": 1.5}), ("short legs", {"leg_length": 0.6}), ("long arms", {"arm_length": 1.5}),
+    ("bigger", {"scale": 1.4}), ("smaller", {"scale": 0.6}),
+)
+"""Won & Lee 2019 Figure 1's bodies by parameter name (`learner.evaluation.morph_demo.SCHEDULES`' keyframes);
+a parameterization offers those whose parameters it has."""
+PUSH_MOMENTUM_NS = 20.0
+"""A shape controller's stand-in for a projectile: the executor's 2 kg ball at 10 m/s."""
+
+
+def finite_number(value: Any, what: str, allowed: str) -> float:
+    """`value` as a finite float, else ValueError naming `what`, the value and what is `allowed`
+    (strings, None, lists and NaN alike: nothing from a user raises a TypeError past here)."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        v = math.nan
+    if isinstance(value, bool) or not math.isfinite(v):
+        raise ValueError(f"{what} = {value!r} is not a finite number; it must be {allowed}")
+    return v
+
+
+def live_task(loaded: eval_core.Loaded, clip: str | None = None, episode_s: float = 3600.0):
+    """The checkpoint's task as a live session runs it: long episodes; for the executor, every
+    humanoid clip trackable, rescheduled at a clip's end, projectiles in the scene, no reactive
+    initialization and no termination (the session reads the checkpoint's own rule off the
+    reward terms and resets by itself)."""
+    cfg = loaded.cfg.task
+    if cfg.name == "executor":
+        ex = dataclasses.replace(cfg.executor, clips=(clip,) if clip else (), split="all", at_clip_end="reschedule",
+                                 reactive_init=False, catch_up_steps=0, termination="none", projectile=True)
+        return dataclasses.replace(cfg, episode_s=episode_s, executor=ex)
+    return dataclasses.replace(eval_core.eval_task(cfg, episode_s), **({"clip_id": clip} if clip else {}))
+
+
+class LiveSession:
+    """One environment of `checkpoint` driven by `agent`; see the module docstring."""
+
+    def __init__(self, checkpoint: str, agent: str = "policy", clip: str | None = None,
+                 shape: dict[str, float] | None = None, seed: int = 0, auto_reset: bool = True):
+        from common.tasks.registry import make_env, task_clips
+
+        if agent not in AGENTS:
+            raise ValueError(f"agent {agent!r} is not one of {', '.join(AGENTS)}")
+        self.loaded = eval_core.load(checkpoint)
+        self.kind = "executor" if self.loaded.cfg.task.name == "executor" else "shape"
+        self.clips = [c for c, _ in task_clips(live_task(self.loaded))]
+        """The clips this checkpoint can follow: every humanoid clip (the executor) or its own task's."""
+        if clip and clip not in self.clips:
+            raise ValueError(f"clip {clip!r} cannot play with this checkpoint; choose from: {', '.join(self.clips)}")
+        self.env = make_env(live_task(self.loaded, clip), seed=seed)
+        self.policy = eval_core.make_policy(self.loaded, self.env.obs_dim, self.env.act_dim)
+        self.agent, self.auto_reset = agent, auto_reset
+        self.rng = np.random.default_rng(seed)
+        self.seed = seed
+        self.clip = clip
+        self.mass_factor = 1.0
+        self.steps = self.resets = 0
+        self.episode_return = 0.0
+        self.last: dict[str, Any] = {}
+        self._base_masses: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self.params = self.env.space.default_array.copy()
+        if shape:
+            self.params[: self.n_shape] = self.shape_vector(shape)
+        self.reset()
+
+    # ---- what the body is ----
+
+    @property
+    def n_shape(self) -> int:
+        """How many leading entries of the parameter vector are shape (the rest: task parameters)."""
+        return int(getattr(self.env, "n_shape", len(self.env.space.names)))
+
+    @property
+    def shape_names(self) -> tuple[str, ...]:
+        return tuple(self.env.space.names[: self.n_shape])
+
+    @property
+    def shape_box(self) -> tuple[np.ndarray, np.ndarray]:
+        s = self.env.space
+        return np.asarray(s.low[: self.n_shape], float), np.asarray(s.high[: self.n_shape], float)
+
+    @property
+    def shape_can_change(self) -> bool:
+        """Shape controllers morph; the executor is trained on the base humanoid only (its box is pinned)."""
+        lo, hi = self.shape_box
+        return self.kind == "shape" and bool(np.any(hi > lo))
+
+    def body_presets(self) -> dict[str, dict[str, float]]:
+        """Named bodies of this parameterization, as shape values (name -> value): "base" and,
+        where the parameterization has the parameters, Won & Lee's Figure 1 bodies (tall, short,
+        wide; long or short legs, long arms; bigger, smaller), clamped to the box."""
+        names, (lo, hi) = self.shape_names, self.shape_box
+        base = dict(zip(names, map(float, self.env.space.default_array[: self.n_shape])))
+        out = {"base": base}
+        if not self.shape_can_change:
+            return out
+        for label, values in BODY_PRESETS:
+            if all(k in names for k in values):
+                out[label] = {**base, **{k: float(np.clip(v, lo[names.index(k)], hi[names.index(k)])) for k, v in values.items()}}
+        return out
+
+    def shape_vector(self, values: dict[str, float]) -> np.ndarray:
+        """The current shape with `values` (name -> value) set; ValueError naming any unknown
+        name or a value outside the parameterization's box."""
+        names = self.shape_names
+        lo, hi = self.shape_box
+        out = np.asarray(self.params[: self.n_shape], dtype=np.float64).copy()
+        if not isinstance(values, dict):
+            raise ValueError(f"shape values {values!r} must be a mapping of parameter name to number")
+        for name, value in values.items():
+            if name not in names:
+                raise ValueError(f"shape parameter {name!r} is not one of {', '.join(names)}")
+            i = names.index(name)
+            v = finite_number(value, f"shape parameter {name}", f"in [{lo[i]:g}, {hi[i]:g}]")
+            if not lo[i] <= v <= hi[i]:
+                raise ValueError(f"shape parameter {name} = {value!r} is outside [{lo[i]:g}, {hi[i]:g}]")
+            out[i] = v
+        return out
+
+    def body_height_m(self) -> float:
+        """The body's vertical extent now (m), from its geoms in the current pose."""
+        from common.characters.character import extent
+
+        lo, hi = extent(self.env.model, self.env.data, 2, self.character_bodies())
+        return hi - lo
+
+    def character_bodies(self) -> np.ndarray:
+        """Body ids of the character (not the world, not the executor's projectiles)."""
+        n = self.env.ref_model.nbody if self.kind == "executor" else self.env.model.nbody
+        return np.arange(1, n)
+
+    @property
+    def root_body(self) -> int:
+        return int(getattr(self.env, "root_body", 1))
+
+    @property
+    def is_swimmer(self) -> bool:
+        return bool(self.env.character.is_swimmer)
+
+    # ---- running ----
+
+    def reset(self) -> None:
+        clip = self.clip if self.kind == "executor" else None
+        if self.kind == "executor":
+            self.obs, _ = self.env.reset(self.seed + self.resets, self.params, clip_id=clip)
+        else:
+            self.obs, _ = self.env.reset(self.seed + self.resets, self.params)
+        self._apply_mass()
+        self.episode_return = 0.0
+        self.episode_steps = 0
+
+    def action(self) -> np.ndarray:
+        if self.agent == "zero":
+            return np.zeros(self.env.act_dim)
+        if self.agent == "random":
+            return self.rng.uniform(-1.0, 1.0, self.env.act_dim)
+        with torch.no_grad():
+            a, _ = self.policy.act(self.obs[None], deterministic=True)
+        return a[0]
+
+    def step(self) -> dict[str, Any]:
+        """One control step; returns what happened: reward, its terms, whether the episode
+        ended (and why) and whether the session reset."""
+        obs, r, term, trunc, info = self.env.step(self.action())
+        self.obs = obs
+        self.steps += 1
+        self.episode_steps += 1
+        self.episode_return += float(r)
+        terms = {k: float(v) for k, v in (info.get("terms") or {}).items()}
+        ended = None
+        if info.get("diverged"):
+            ended = "divergence"
+        elif self.kind == "executor":
+            # NOTE: live, the executor is reset when it has lost the target (PHC's criterion), not
+            # at the first reward term below alpha: a viewer wants to see it recover or fall
+            if float(info.get("body_error_m", 0.0)) > LOST_M:
+                ended = "lost"
+        elif term:
+            ended = "fell"
+        elif trunc:
+            ended = "time"
+        self.last = {"step": self.steps, "reward": float(r), "terms": terms, "ended": ended,
+                     "return": self.episode_return, "episode_steps": self.episode_steps, "reset": False,
+                     **{k: info[k] for k in ("clip_id", "clip_time_s") if k in info}}
+        if ended and self.auto_reset:
+            self.resets += 1
+            self.reset()
+            self.last["reset"] = True
+        return self.last
+
+    # ---- steering ----
+
+    def set_shape(self, values: dict[str, float]) -> np.ndarray:
+        """Morph the body to the current shape with `values` set, keeping its state (shape
+        controllers only); returns the new shape vector."""
+        if not self.shape_can_change:
+            raise ValueError("this checkpoint's body cannot change shape (the executor trains on the base humanoid)")
+        shape = self.shape_vector(values)
+        self.env.set_shape(shape)
+        self.params = np.concatenate([shape, np.asarray(self.params[self.n_shape :], float)])
+        self._apply_mass()
+        self.obs = self.env._obs_safe()
+        return shape
+
+    def use_scheduler(self, scheduler) -> None:
+        """Drive the executor with another scheduler (UniCon's run-time schedulers) from now."""
+        if self.kind != "executor":
+            raise ValueError("schedulers drive the executor; a shape controller follows its own clip")
+        self.env.use_scheduler(scheduler)
+        self.reset()
+
+    def throw_projectile(self, speed_mps: float = 10.0) -> None:
+        """The executor: a 2 kg ball at `speed_mps`; a shape controller: a sideways push of the
+        same momentum on its root."""
+        speed_mps = finite_number(speed_mps, "projectile speed (m/s)", "in (0, 100]")
+        if not 0.0 < speed_mps <= 100.0:
+            raise ValueError(f"projectile speed {speed_mps} m/s must be in (0, 100]")
+        if self.kind == "executor":
+            self.env.throw_projectile(float(speed_mps), 2.0, self.rng)
+            return
+        a = self.rng.uniform(0.0, 2.0 * math.pi)
+        mass = float(np.sum(self.env.model.body_mass[self.character_bodies()]))
+        dv = PUSH_MOMENTUM_NS * float(speed_mps) / 10.0 / mass
+        self.env.data.qvel[0:2] += dv * np.array([math.cos(a), math.sin(a)])
+
+    def scale_mass(self, factor: float) -> None:
+        """Every body `factor` times heavier than the checkpoint's (0.25 .. 4)."""
+        factor = finite_number(factor, "mass factor", "in [0.25, 4]")
+        if not 0.25 <= factor <= 4.0:
+            raise ValueError(f"mass factor {factor!r} must be in [0.25, 4]")
+        self.mass_factor = factor
+        self._apply_mass()
+
+    def _apply_mass(self) -> None:
+        if self.kind == "executor":
+            self.env.scale_mass(self.mass_factor)
+            return
+        m = self.env.model  # NOTE: a morph or a reset may hand out another model: keep each one's own masses
+        base = self._base_masses.setdefault(id(m), (m.body_mass.copy(), m.body_inertia.copy()))
+        m.body_mass[:] = base[0] * self.mass_factor
+        m.body_inertia[:] = base[1] * self.mass_factor
+
+    def status(self) -> dict[str, Any]:
+        """What the studio shows beside the character."""
+        return {"kind": self.kind, "agent": self.agent, "checkpoint": str(self.loaded.path), "name": self.loaded.name,
+                "steps": self.steps, "resets": self.resets, "mass_factor": self.mass_factor,
+                "shape": dict(zip(self.shape_names, map(float, self.params[: self.n_shape]))),
+                "height_m": self.body_height_m(), **self.last}
+

@@ -1,0 +1,454 @@
+"""`morphmimic studio`: a local web page that runs a trained controller live in 3-D and lets you
+change it while it moves: the body (Won & Lee 2019's interactive character creation: shape
+sliders that morph the walking character), the checkpoint, agent, clip and, for the executor,
+UniCon 2020's schedulers (keyboard steering, clip stitching), projectiles and mass.
+
+    morphmimic studio                                   # lower_biped-curriculum on http://127.0.0.1:8080
+    morphmimic studio --checkpoint learner/pretrained/executor --port 8090
+    morphmimic studio --host 0.0.0.0                    # share it on the network
+    morphmimic studio --seconds 30                      # stops by itself (tests, demos)
+
+Library: the page is viser (1.x: a three.js client served by Python over a websocket, with GUI
+panels, uPlot plots and hotkeys), and the 3-D view is mjviser's `ViserMujocoScene` (by the mjlab
+authors), which turns any `MjModel`'s geoms into batched viser meshes and moves them from `MjData`
+each frame. We chose mjviser over hand-writing that geom-to-mesh layer on plain viser because it
+already covers every geom type, materials, the floor grid and camera tracking; its own `Viewer`
+owns the simulation loop (pacing, pause), so we use only its scene, and since it bakes geom sizes
+at construction, a morph (a recompiled model) rebuilds the scene (studio_scene.py).
+
+How it runs (studio_core.py): a background thread steps the session at real time; every control
+on the page only queues a command that the thread applies between two steps, and a command that
+fails (an out-of-range value, an unknown clip, a missing scheduler) is counted and shown in the
+status line while the simulation keeps going.
+"""
+
+from __future__ import annotations
+
+
+# NOTE: before anything imports mujoco (the session may render offscreen elsewhere in-process).
+from common.offscreen_gl import choose_offscreen_gl  # noqa: E402
+
+choose_offscreen_gl()
+
+import argparse
+import html
+import logging
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import viser
+
+from learner.evaluation import cli_args
+from learner.live.session import AGENTS
+from learner.live.studio_core import KEYS, SCHEDULERS, StudioCore, pretrained_checkpoints
+from learner.live.studio_scene import CharacterScene
+
+DEFAULT_CHECKPOINT = "lower_biped-curriculum"
+REFRESH_S = 0.25
+"""How often the status line, the plots and the table are refreshed."""
+PLOT_POINTS = 240
+COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf")
+HOTKEYS = {"arrowleft": "left", "arrowright": "right", "arrowup": "faster", "arrowdown": "slower", "S": "stop"}
+
+
+class StudioGui:
+    """The control panel: every callback only queues a command on the core."""
+
+    def __init__(self, server: viser.ViserServer, core: StudioCore, scene: CharacterScene, checkpoints: dict[str, str]):
+        self.server, self.core, self.scene = server, core, scene
+        self.checkpoints = dict(checkpoints)
+        self._quiet = threading.local()
+        self._generation = -1
+        self._touched: dict[str, float] = {}
+        self._shape_sliders: dict[str, Any] = {}
+        self._terms_plot = self._shape_plot = None
+        self._terms_names: tuple[str, ...] = ()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        gui = server.gui
+        gui.configure_theme(control_width="large", show_share_button=False, brand_color=(46, 94, 170))
+        self.status = gui.add_markdown("starting...")
+        self.error_line = gui.add_html("")
+        tabs = gui.add_tab_group()
+        current = self._checkpoint_name(core.checkpoint)  # NOTE: first: it adds a checkpoint that is not shipped
+        with tabs.add_tab("Run", icon=viser.Icon.PLAYER_PLAY):
+            self.checkpoint = gui.add_dropdown("Checkpoint", options=list(self.checkpoints), initial_value=current,
+                                               hint="a shipped checkpoint (learner/pretrained/*); loading takes a few seconds")
+            self.agent = gui.add_dropdown("Agent", options=list(AGENTS), initial_value=core.session.agent,
+                                          hint="the policy (mean action), or zero / random actions for comparison")
+            self.clip = gui.add_dropdown("Clip", options=list(core.session.clips) or ["-"])
+            self.scheduler = gui.add_dropdown("Scheduler", options=list(SCHEDULERS), initial_value="dataset",
+                                              hint="where the executor's target frames come from (UniCon's schedulers)")
+            self.pause = gui.add_checkbox("Pause", initial_value=False)
+            self.follow = gui.add_checkbox("Camera follow", initial_value=True, hint="keep the character centred")
+            self.reset_button = gui.add_button("Reset", icon=viser.Icon.REFRESH)
+            with gui.add_folder("Perturb", expand_by_default=False):
+                self.speed = gui.add_slider("Projectile m/s", min=1.0, max=30.0, step=0.5, initial_value=10.0,
+                                            hint="the executor: a 2 kg ball; a shape controller: a push of the same momentum")
+                self.throw_button = gui.add_button("Throw projectile", icon=viser.Icon.BALL_BASKETBALL)
+                self.mass = gui.add_slider("Mass factor", min=0.5, max=2.0, step=0.05, initial_value=1.0,
+                                           hint="every body heavier or lighter (UniCon Table 2)")
+        with tabs.add_tab("Body", icon=viser.Icon.MAN):
+            self.body_note = gui.add_markdown("")
+            self.body_preset = gui.add_dropdown("Body preset", options=["base"],
+                                                hint="a named body (Won & Lee's Figure 1): morphs to it while moving")
+            self.shape_text = gui.add_text("NAME=VALUE", initial_value="global_z=1.2",
+                                           hint="type shape values (several: spaces between); out-of-range ones are refused")
+            self.shape_apply = gui.add_button("Apply typed values")
+            self.shape_folder = gui.add_folder("Shape")
+        with tabs.add_tab("Steer", icon=viser.Icon.KEYBOARD):
+            self.steer_note = gui.add_markdown("")
+            self.keys = gui.add_button_group("Keyboard", options=list(KEYS))
+            self.style = gui.add_dropdown("Style", options=keyboard_styles(), hint="the keyboard scheduler's locomotion styles")
+            self.style_button = gui.add_button("Set style")
+            self.queue_clip = gui.add_dropdown("Stitch clip", options=list(core.session.clips) or ["-"])
+            self.queue_button = gui.add_button("Queue clip", icon=viser.Icon.PLAYLIST_ADD)
+        self.plots = gui.add_folder("Plots")
+        with self.plots:
+            self.table = gui.add_markdown("")
+        self._wire()
+
+    # ---- callbacks: enqueue only ----
+
+    def _checkpoint_name(self, path: str) -> str:
+        for name, p in self.checkpoints.items():
+            if Path(p).resolve() == Path(path).resolve():
+                return name
+        self.checkpoints[str(path)] = str(path)
+        return str(path)
+
+    def _user(self) -> bool:
+        """False while the panel itself writes a control's value (no command then)."""
+        return not getattr(self._quiet, "on", False)
+
+    def _set_quietly(self, handle, **props: Any) -> None:
+        self._quiet.on = True
+        try:
+            for k, v in props.items():
+                setattr(handle, k, v)
+        finally:
+            self._quiet.on = False
+
+    def _wire(self) -> None:
+        core = self.core
+
+        @self.checkpoint.on_update
+        def _(_) -> None:
+            if self._user():
+                core.load(self.checkpoints[self.checkpoint.value])
+
+        @self.agent.on_update
+        def _(_) -> None:
+            if self._user():
+                core.set_agent(self.agent.value)
+
+        @self.clip.on_update
+        def _(_) -> None:
+            if self._user():
+                core.set_clip(self.clip.value)
+
+        @self.scheduler.on_update
+        def _(_) -> None:
+            if self._user():
+                core.use_scheduler(self.scheduler.value)
+
+        @self.pause.on_update
+        def _(_) -> None:
+            if self._user():
+                core.set_paused(self.pause.value)
+
+        @self.follow.on_update
+        def _(_) -> None:
+            if self._user():
+                s = core.session
+                self.scene.set_follow(self.follow.value, np.array(s.env.data.xpos[s.root_body]))
+
+        self.reset_button.on_click(lambda _: core.reset())
+        self.throw_button.on_click(lambda _: core.throw(self.speed.value))
+
+        @self.mass.on_update
+        def _(_) -> None:
+            if self._user():
+                core.set_mass(self.mass.value)
+
+        self.shape_apply.on_click(lambda _: core.set_shape_text(self.shape_text.value))
+
+        @self.body_preset.on_update
+        def _(_) -> None:
+            if self._user():
+                self.choose_body(self.body_preset.value)
+        self.keys.on_click(lambda event: core.steer(event.target.value))
+        self.style_button.on_click(lambda _: core.steer(f"style:{self.style.value}"))
+        self.queue_button.on_click(lambda _: core.queue_clip(self.queue_clip.value))
+        for hotkey, key in HOTKEYS.items():
+            cmd = self.server.gui.add_command(f"Steer: {key}", description="keyboard scheduler (the executor)",
+                                              hotkey=hotkey)
+            cmd.on_trigger(lambda _, key=key: core.steer(key))
+        self.server.gui.add_command("Pause / run", hotkey="P").on_trigger(
+            lambda _: self._set_pause_from_key())
+
+    def _set_pause_from_key(self) -> None:
+        self.pause.value = not self.pause.value  # fires the checkbox's callback (a user action)
+
+    def choose_body(self, label: str) -> None:
+        """What picking a body preset does: morph to its shape values (the sliders follow)."""
+        presets = self.core.session.body_presets()
+        if label in presets:
+            for name in presets[label]:
+                self._touched.pop(name, None)
+            self.core.set_shape(presets[label])
+
+    def move_slider(self, name: str, value: float) -> None:
+        """What dragging shape slider `name` does (the callback's command path)."""
+        self._touched[name] = time.monotonic()
+        self.core.set_shape({name: value})
+
+    # ---- the session's controls (rebuilt when another session is loaded) ----
+
+    def _rebuild_session_controls(self, snap: dict[str, Any]) -> None:
+        s = self.core.session
+        gui = self.server.gui
+        executor = s.kind == "executor"
+        clips = list(s.clips) or ["-"]
+        current = self._checkpoint_name(self.core.checkpoint)
+        self._set_quietly(self.checkpoint, options=list(self.checkpoints))
+        self._set_quietly(self.checkpoint, value=current)
+        self._set_quietly(self.agent, value=s.agent)
+        self._set_quietly(self.clip, options=clips)
+        self._set_quietly(self.clip, value=snap["clip"] if snap["clip"] in clips else clips[0])
+        self._set_quietly(self.scheduler, value=self.core.scheduler_name, disabled=not executor)
+        self._set_quietly(self.mass, value=1.0)
+        self._set_quietly(self.queue_clip, options=clips)
+        for h in (self.style_button, self.queue_button, self.queue_clip, self.style):  # NOTE: viser cannot disable a button group
+            h.disabled = not executor
+        self.steer_note.content = (
+            "Keys (or the arrow keys, **S** stop) steer the executor through the keyboard scheduler; "
+            "*Queue clip* stitches clips (the stitch scheduler). Both switch the scheduler on first use."
+            if executor else f"*{s.loaded.name} is a shape controller: it follows its own clip; "
+                             "keyboard steering and stitching drive the executor.*")
+        for slider in self._shape_sliders.values():
+            slider.remove()
+        self._shape_sliders = {}
+        lo, hi = s.shape_box
+        can = s.shape_can_change
+        self.body_note.content = (
+            f"{len(s.shape_names)} shape parameters; dragging a slider morphs the body while it moves "
+            "(Won & Lee 2019); its state is kept." if can else
+            f"*{s.loaded.name} trains on one body: its shape cannot change (sliders disabled).*")
+        self.shape_text.disabled = self.shape_apply.disabled = not can
+        self._set_quietly(self.body_preset, options=list(s.body_presets()), value="base", disabled=not can)
+        with self.shape_folder:
+            for i, name in enumerate(s.shape_names):
+                step = max(1e-3, round(float(hi[i] - lo[i]) / 100.0, 4)) if hi[i] > lo[i] else 0.01
+                slider = gui.add_slider(name, min=float(lo[i]), max=float(max(hi[i], lo[i] + step)), step=step,
+                                        initial_value=float(s.params[i]), disabled=not can)
+                slider.on_update(lambda _, name=name, slider=slider: self._user() and self.move_slider(name, slider.value))
+                self._shape_sliders[name] = slider
+        for plot in (self._terms_plot, self._shape_plot):
+            if plot is not None:
+                plot.remove()
+        self._terms_plot = self._shape_plot = None
+        self._terms_names = ()
+        if len(s.shape_names):
+            x = np.arange(len(s.shape_names), dtype=float)
+            with self.plots:
+                self._shape_plot = gui.add_uplot(
+                    (x, snap["shape"], np.asarray(lo, float), np.asarray(hi, float)),
+                    ({"label": "parameter #"}, {"label": "shape", "stroke": "#2e5eaa", "width": 2, "points": {"show": True}},
+                     {"label": "low", "stroke": "#aaaaaa", "dash": [4, 4]}, {"label": "high", "stroke": "#aaaaaa", "dash": [4, 4]}),
+                    title="shape vector", scales={"x": {"time": False}}, aspect=2.0, order=2.0)
+        self._generation = snap["generation"]
+
+    def _terms_plot_for(self, names: tuple[str, ...]) -> None:
+        if names == self._terms_names and self._terms_plot is not None:
+            return
+        if self._terms_plot is not None:
+            self._terms_plot.remove()
+        series = [{"label": "t (s)"}, {"label": "reward", "stroke": "#000000", "width": 2}]
+        series += [{"label": n, "stroke": COLORS[i % len(COLORS)], "width": 1.5} for i, n in enumerate(names)]
+        with self.plots:
+            self._terms_plot = self.server.gui.add_uplot(
+                tuple(np.zeros(2) for _ in series), tuple(series), title="reward and its terms (last 10 s)",
+                scales={"x": {"time": False}}, aspect=1.6, order=1.0)
+        self._terms_names = names
+
+    # ---- refresh: the panel's thread ----
+
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._run, name="studio-gui", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(5.0)
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                self.refresh()
+            except Exception:  # noqa: BLE001 - the panel must never stop; print and go on
+                import traceback
+
+                traceback.print_exc()
+            self._stop.wait(REFRESH_S)
+
+    def refresh(self) -> None:
+        snap = self.core.snapshot()
+        if snap["generation"] != self._generation:
+            self._rebuild_session_controls(snap)
+        self.status.content = status_markdown(snap)
+        self.error_line.content = message_html(snap)
+        self._set_quietly(self.scheduler, value=snap["scheduler"])
+        self._set_quietly(self.pause, value=snap["paused"])
+        now = time.monotonic()
+        for i, (name, slider) in enumerate(self._shape_sliders.items()):
+            v = float(snap["shape"][i])
+            if abs(slider.value - v) > 1e-9 and now - self._touched.get(name, 0.0) > 1.0:
+                self._set_quietly(slider, value=float(np.clip(v, slider.min, slider.max)))
+        t = snap["t"]
+        if len(t) >= 2:
+            names = tuple(snap["terms"])
+            self._terms_plot_for(names)
+            idx = np.unique(np.linspace(0, len(t) - 1, min(len(t), PLOT_POINTS)).astype(int))
+            ys = [snap["reward_hist"]] + [snap["terms"][n] for n in names]
+            self._terms_plot.data = (t[idx],) + tuple(np.nan_to_num(y[idx]) for y in ys)
+        if self._shape_plot is not None:
+            x, _, lo, hi = self._shape_plot.data
+            self._shape_plot.data = (x, snap["shape"], lo, hi)
+        self.table.content = terms_table(snap)
+
+
+def keyboard_styles() -> list[str]:
+    """The keyboard scheduler's style names (walk, run, ...), or just walk and run when the
+    schedulers are not in this checkout."""
+    try:
+        from common.tasks.scheduler_keyboard import locomotion_styles
+
+        return list(locomotion_styles()) or ["walk", "run"]
+    except Exception:  # noqa: BLE001 - the panel still opens; choosing a style reports the problem
+        return ["walk", "run"]
+
+
+def status_markdown(snap: dict[str, Any]) -> str:
+    what = "executor" if snap["kind"] == "executor" else "shape controller"
+    parts = [f"**{snap['name']}** ({what})", f"agent {snap['agent']}", f"t {snap['time_s']:.1f} s",
+             f"return {snap['return']:.1f}", f"resets {snap['resets']}", f"mass x{snap['mass_factor']:.2f}"]
+    if snap["kind"] == "executor":
+        parts.append(f"{snap['scheduler']}: {snap['clip'] or '-'}")
+    if snap["paused"]:
+        parts.append("**paused**")
+    if snap["loading"]:
+        parts.append(f"loading {snap['loading']}...")
+    parts.append(f"**errors {snap['errors']}**")
+    return " · ".join(parts)
+
+
+def message_html(snap: dict[str, Any]) -> str:
+    text = html.escape(snap["message"] or "", quote=False)
+    if snap["message_is_error"]:
+        return (f'<div id="studio-error" style="color:#b00020;font-size:0.85em;padding:0 1em">'
+                f'&#9888; error {snap["errors"]}: {text}</div>')
+    return f'<div id="studio-message" style="color:#555;font-size:0.85em;padding:0 1em">{text}</div>'
+
+
+def terms_table(snap: dict[str, Any]) -> str:
+    if not snap["terms"]:
+        return ""
+    rows = ["| term | now | mean (10 s) |", "|---|---:|---:|",
+            f"| reward | {snap['reward']:.3f} | {np.nanmean(snap['reward_hist']):.3f} |"]
+    rows += [f"| {n} | {v[-1]:.3f} | {np.nanmean(v):.3f} |" for n, v in snap["terms"].items()]
+    return "\n".join(rows)
+
+
+class _QuietHandshakes(logging.Filter):
+    """Browsers open speculative connections that close before a request: websockets logs each
+    as an error with a traceback; nothing is wrong, so those records are dropped."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return "opening handshake failed" not in record.getMessage()
+
+
+class Studio:
+    """The web studio: a viser server, the 3-D scene, the panel and the running core."""
+
+    def __init__(self, checkpoint: str | None = None, host: str = "127.0.0.1", port: int = 8080,
+                 agent: str = "policy", clip: str | None = None, seed: int = 0, verbose: bool = False):
+        server_log = logging.getLogger("websockets.server")
+        if not any(isinstance(f, _QuietHandshakes) for f in server_log.filters):
+            server_log.addFilter(_QuietHandshakes())
+        checkpoints = pretrained_checkpoints()
+        checkpoint = checkpoints.get(checkpoint or DEFAULT_CHECKPOINT, checkpoint or "")
+        self.core = StudioCore(checkpoint, agent=agent, clip=clip, seed=seed)
+        self.server = viser.ViserServer(host=host, port=port, label="morphmimic studio", verbose=verbose)
+        self.scene = CharacterScene(self.server)
+        self.core.on_frame = lambda core: self.scene.update(core.session)
+        self.gui = StudioGui(self.server, self.core, self.scene, checkpoints)
+
+    @property
+    def url(self) -> str:
+        host = self.server.get_host()
+        return f"http://{'127.0.0.1' if host in ('0.0.0.0', '') else host}:{self.server.get_port()}/"
+
+    def start(self) -> "Studio":
+        self.gui.refresh()
+        self.core.start()
+        self.gui.start()
+        return self
+
+    def stop(self) -> None:
+        self.gui.stop()
+        self.core.stop()
+        self.server.stop()
+
+    def __enter__(self) -> "Studio":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="morphmimic studio", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--checkpoint", default=DEFAULT_CHECKPOINT,
+                   help=f"a shipped checkpoint name ({', '.join(pretrained_checkpoints())}) or a checkpoint path")
+    p.add_argument("--host", default="127.0.0.1", help="address to serve on (0.0.0.0: share it on the network)")
+    p.add_argument("--port", type=cli_args.port, default=8080, help="port (taken: the next free one is used and printed; 0: any)")
+    p.add_argument("--agent", choices=AGENTS, default="policy")
+    p.add_argument("--clip", default=None, help="the clip to follow (the executor: any humanoid clip)")
+    p.add_argument("--seed", type=cli_args.seed, default=0)
+    p.add_argument("--seconds", type=cli_args.positive_float, default=None, help="stop by itself after this many seconds")
+    return p
+
+
+def main(argv: list[str]) -> int:
+    args = build_parser().parse_args(argv)
+    import torch
+
+    torch.set_num_threads(1)  # NOTE: one small MLP per step: more threads only fight the server's
+    try:
+        studio = Studio(args.checkpoint, host=args.host, port=args.port, agent=args.agent, clip=args.clip, seed=args.seed)
+    except (ValueError, FileNotFoundError, SystemExit) as exc:  # NOTE: eval_core.load exits with a message on a bad checkpoint
+        print(f"morphmimic studio: {exc}", file=sys.stderr)
+        return 2
+    studio.start()
+    print(f"[studio] {studio.core.session.loaded.name} at {studio.url}  (Ctrl-C stops)", flush=True)
+    end = time.monotonic() + args.seconds if args.seconds else None
+    try:
+        while end is None or time.monotonic() < end:
+            time.sleep(0.2 if end is None else max(0.0, min(0.2, end - time.monotonic())))
+    except KeyboardInterrupt:
+        pass
+    finally:
+        studio.stop()
+    snap = studio.core.snapshot()
+    print(f"[studio] stopped: {snap['loop_steps']} steps, {snap['errors']} errors", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))

@@ -1,0 +1,284 @@
+"""`morphmimic evaluate`, `morphmimic ablation` and the morph demo on tiny untrained
+checkpoints (few shapes, short episodes), and the shipped checkpoints through the morph demo."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from common.tasks.body_config import BodyConfig
+from learner import checkpoint
+from learner.presets import PRESETS
+
+PRETRAINED = Path(__file__).resolve().parents[3] / "learner" / "pretrained"
+
+
+def _tiny_checkpoint(tmp: Path, name: str, **imitate_changes) -> Path:
+    from learner.learner import Learner
+
+    cfg = PRESETS["lower_biped-tiny"][1]
+    task = dataclasses.replace(cfg.task, imitate=dataclasses.replace(cfg.task.imitate, **imitate_changes))
+    cfg = dataclasses.replace(cfg, name=name, task=task)
+    return checkpoint.save(tmp / name / "ckpt", 0, Learner(cfg).state_dict(), keep=1)
+
+
+def test_evaluate_writes_json_maps_markdown_and_strips(tmp_path: Path, capsys) -> None:
+    from learner.evaluation import evaluate
+
+    ckpt = _tiny_checkpoint(tmp_path, "tiny")
+    out = tmp_path / "eval"
+    assert evaluate.main(["--checkpoint", str(tmp_path / "tiny"), "--shapes", "3", "--episode-s", "0.5", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "task achievement" in printed and "fall-down" in printed
+    res = json.loads((out / "results.json").read_text())
+    assert res["meta"]["checkpoint"] == str(ckpt / "state.pt")
+    assert len(res["shapes"]) == 3
+    for r in res["shapes"]:
+        assert len(r["params"]) == len(res["meta"]["param_names"]) and 0 < r["seconds"] <= 0.5 + 1e-9
+        assert bool(r["fall_bodies"]) == r["fell"]  # a walker's fall names the bodies that touched the floor
+        assert 0.0 < r["ref_root_range_m"] < 0.5 and 0.0 < r["ref_root_step_m"] <= r["ref_root_range_m"]
+    assert 0.0 <= res["summary"]["fall_down_pct"] <= 100.0
+    assert "fall-down %" in (out / "summary.md").read_text()
+    for png in ("map_return.png", "best.png", "worst.png"):
+        assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", png
+
+
+def test_same_seed_gives_the_same_shapes(tmp_path: Path) -> None:
+    from learner.evaluation import eval_core
+
+    _tiny_checkpoint(tmp_path, "tiny")
+    loaded = eval_core.load(tmp_path / "tiny")
+    from common.tasks.registry import task_space
+
+    space = task_space(eval_core.eval_task(loaded.cfg.task, 1.0))
+    np.testing.assert_array_equal(eval_core.eval_shapes(space, 5, 7), eval_core.eval_shapes(space, 5, 7))
+    # A checkpoint trained on a shrunken box (a curriculum stage) is evaluated on the whole box.
+    shrunk = dataclasses.replace(loaded.cfg.task, body=dataclasses.replace(loaded.cfg.task.body, shape_box_scale=0.25))
+    np.testing.assert_array_equal(task_space(eval_core.eval_task(shrunk, 1.0)).low_array, space.low_array)
+
+
+def test_extremeness_is_the_distance_from_the_base_shape_one_scale_per_side() -> None:
+    """The height/thickness box is lopsided around the base (height 0.75-1.5 around 1.0): the
+    base shape scores 0 and either end of a parameter scores 1, however far from the base it is."""
+    from common.tasks.base import TaskConfig
+    from common.tasks.registry import task_space
+    from learner.evaluation import eval_core
+
+    space = task_space(TaskConfig(name="lower_biped", body=BodyConfig(parameterization="height_thickness")))
+    lo, hi, base = space.low_array, space.high_array, space.default_array
+    assert not np.allclose(hi - base, base - lo)  # the box is lopsided
+    ends = np.stack([base, np.where(np.arange(space.dim) == 0, lo, base), np.where(np.arange(space.dim) == 0, hi, base)])
+    np.testing.assert_allclose(eval_core.extremeness(space, ends, 1), [0.0, 1.0, 1.0])
+    corner = eval_core.extremeness(space, np.stack([lo, hi]), 2)
+    np.testing.assert_allclose(corner, [np.sqrt(2), np.sqrt(2)])
+
+
+def test_summary_counts_falls_divergences_and_the_extreme_tenth() -> None:
+    """20 shapes along one parameter: the two farthest from the base (the extreme 10%) fell, one
+    near the base diverged (ended early: a fall too); the rest stayed up."""
+    from common.tasks.base import TaskConfig
+    from common.tasks.registry import task_space
+    from learner.evaluation import eval_core
+
+    space = task_space(TaskConfig(name="lower_biped", body=BodyConfig(parameterization="height_thickness")))
+    base = space.default_array
+    xs = np.linspace(base[0], space.high_array[0], 20)
+    results = [{"params": [x, *base[1:]], "fell": i >= 18, "diverged": i == 1, "return": 1.0, "task_reward": 2.0,
+                "seconds": 3.0, "fall_bodies": ["Spine", "TibiaL"][: i - 17] if i >= 18 else []}
+               for i, x in enumerate(xs)]
+    s = eval_core.summarize(results, space, 2)
+    assert s["fall_down_pct"] == pytest.approx(15.0)
+    assert s["fall_down_pct_extreme10"] == 100.0 and s["diverged"] == 1
+    assert s["falls_by_body"] == {"Spine": 2, "TibiaL": 1}
+    assert "falls_by_ref_root_range" in s and s["falls_by_ref_root_range"] == []  # no reference figures given
+
+
+def test_summary_tables_falls_by_the_references_root_range() -> None:
+    """Shapes whose retargeted root ranges over 10 cm fell, the rest did not: the table's bins
+    say so, and an empty bin has no rate."""
+    from common.tasks.base import TaskConfig
+    from common.tasks.registry import task_space
+    from learner.evaluation import eval_core
+
+    space = task_space(TaskConfig(name="lower_biped", body=BodyConfig(parameterization="height_thickness")))
+    spans = [0.01, 0.02, 0.04, 0.12, 0.20]
+    results = [{"params": list(space.default_array), "fell": z > 0.1, "diverged": False, "return": 1.0,
+                "task_reward": 1.0, "seconds": 1.0, "fall_bodies": [], "ref_root_range_m": z, "ref_root_step_m": z / 4}
+               for z in spans]
+    rows = eval_core.summarize(results, space, 2)["falls_by_ref_root_range"]
+    assert [r["root_range"] for r in rows] == ["0-3 cm", "3-6 cm", "6-10 cm", "over 10 cm"]
+    assert [r["shapes"] for r in rows] == [2, 1, 0, 2]
+    assert [r["fall_down_pct"] for r in rows] == [0.0, 0.0, None, 100.0]
+
+
+def test_evaluate_box_scale_draws_shapes_from_the_shrunk_box(tmp_path: Path, capsys) -> None:
+    from common.tasks.registry import task_space
+    from learner.evaluation import eval_core, evaluate
+
+    _tiny_checkpoint(tmp_path, "tiny")
+    out = tmp_path / "eval"
+    argv = ["--checkpoint", str(tmp_path / "tiny"), "--shapes", "4", "--episode-s", "0.3", "--no-render", "--out", str(out)]
+    assert evaluate.main(argv + ["--box-scale", "0.25"]) == 0
+    assert "in the box x0.25" in capsys.readouterr().out
+    res = json.loads((out / "results.json").read_text())
+    assert res["meta"]["box_scale"] == 0.25 and "shrunk x0.25" in (out / "summary.md").read_text()
+    full = task_space(eval_core.eval_task(eval_core.load(tmp_path / "tiny").cfg.task, 1.0))
+    base, lo, hi = full.default_array, full.low_array, full.high_array
+    params = np.array([r["params"] for r in res["shapes"]])
+    assert np.all(params >= base + 0.25 * (lo - base) - 1e-12) and np.all(params <= base + 0.25 * (hi - base) + 1e-12)
+    assert np.any(np.abs(params - base) > 1e-3)  # drawn, not the base shape every time
+    for bad in ("1.5", "0", "half"):
+        with pytest.raises(SystemExit):
+            evaluate.main(argv + ["--box-scale", bad])
+        err = capsys.readouterr().err
+        assert f"argument --box-scale: '{bad}'" in err and "must be in (0, 1]" in err, err
+
+
+def test_ablation_table_has_one_row_per_checkpoint(tmp_path: Path) -> None:
+    from learner.evaluation import ablation
+
+    _tiny_checkpoint(tmp_path, "norm")
+    _tiny_checkpoint(tmp_path, "nonorm", reward_normalization=False)
+    out = tmp_path / "abl"
+    argv = ["--checkpoints", str(tmp_path / "norm"), str(tmp_path / "nonorm"), "--shapes", "2", "--episode-s", "0.3",
+            "--out", str(out)]
+    assert ablation.main(argv) == 0
+    text = (out / "ablation.md").read_text()
+    assert "| `norm` | adaptive k=1, reward norm |" in text
+    assert "| `nonorm` | adaptive k=1, no reward norm |" in text
+    assert len(json.loads((out / "ablation.json").read_text())) == 2
+
+
+def test_ablation_keeps_two_checkpoints_of_one_run_apart(tmp_path: Path) -> None:
+    from learner.evaluation import ablation, eval_core
+    from learner.learner import Learner
+
+    first = _tiny_checkpoint(tmp_path, "run")
+    state = Learner(eval_core.load(first).cfg).state_dict()
+    state["iteration"] = 5
+    second = checkpoint.save(tmp_path / "run" / "ckpt", 5, state, keep=2)
+    out = tmp_path / "abl"
+    argv = ["--checkpoints", str(first), str(second), "--shapes", "2", "--episode-s", "0.3", "--out", str(out)]
+    assert ablation.main(argv) == 0
+    assert (out / "run-0" / "results.json").exists() and (out / "run-5" / "results.json").exists()
+
+
+def test_morph_demo_changes_the_body_during_the_episode(tmp_path: Path) -> None:
+    from learner.evaluation import eval_core, morph_demo
+
+    _tiny_checkpoint(tmp_path, "tiny")
+    schedule = [(0.0, {}), (0.3, {"global_z": 1.3})]
+    result = morph_demo.run_morph(eval_core.load(tmp_path / "tiny"), schedule)
+    assert result["morphs"] >= 5
+
+
+def test_evaluate_morph_forwards_the_strength_and_refuses_it_alone(tmp_path: Path) -> None:
+    from learner.evaluation import evaluate
+
+    ckpt = _tiny_checkpoint(tmp_path, "tiny")
+    out = tmp_path / "morph"
+    assert evaluate.main(["--checkpoint", str(ckpt), "--morph", "--strength", "0.5", "--out", str(out)]) == 0
+    assert json.loads((out / "morph.json").read_text())["strength"] == 0.5
+    with pytest.raises(SystemExit, match="--strength 0.5 is a morph demo option"):
+        evaluate.main(["--checkpoint", str(ckpt), "--strength", "0.5", "--out", str(tmp_path / "e")])
+    with pytest.raises(SystemExit, match="--shapes, --episode-s: not options of the morph demo"):
+        evaluate.main(["--checkpoint", str(ckpt), "--morph", "--shapes", "20", "--episode-s", "5"])
+
+
+def test_bad_map_params_fail_before_any_episode_and_a_render_failure_keeps_the_results(tmp_path: Path,
+                                                                                      monkeypatch) -> None:
+    from learner.evaluation import eval_core, evaluate
+
+    _tiny_checkpoint(tmp_path, "tiny")
+    ran = []
+    monkeypatch.setattr(eval_core, "evaluate", lambda *a, **k: ran.append(1))
+    argv = ["--checkpoint", str(tmp_path / "tiny"), "--shapes", "2", "--episode-s", "0.3", "--out", str(tmp_path / "e")]
+    with pytest.raises(SystemExit, match=r"--map-params \['global_z', 'nope'\]: choose two of"):
+        evaluate.main(argv + ["--map-params", "global_z", "nope"])
+    assert not ran
+    monkeypatch.undo()
+
+    def broken(*a, **k):
+        raise RuntimeError("no GL context")
+
+    monkeypatch.setattr(evaluate, "render_episode", broken)
+    with pytest.raises(RuntimeError, match="no GL context"):
+        evaluate.main(argv)
+    assert len(json.loads((tmp_path / "e" / "results.json").read_text())["shapes"]) == 2
+
+
+@pytest.mark.parametrize("bad, says", [
+    ("[[0, {}], [3", "is not JSON"),
+    ('{"global_z": 1.3}', "must be a non-empty list"),
+    ("[[0, {}], [3, {}], [2, {}]]", "times [0.0, 3.0, 2] must be strictly increasing"),
+    ("[[-1, {}]]", "each must be [time_s >= 0"),
+    ('[[0, {"global_z": "tall"}]]', "global_z = 'tall' must be a finite number"),
+])
+def test_bad_morph_schedules_are_usage_errors(bad: str, says: str, capsys) -> None:
+    from learner.evaluation import morph_demo
+
+    with pytest.raises(SystemExit) as exc:
+        morph_demo.main(["--checkpoint", "no/such/checkpoint", "--schedule", bad])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "argument --schedule" in err and says in err, err
+
+
+@pytest.mark.parametrize("name", sorted(p.name for p in PRETRAINED.iterdir() if (p / "state.pt").is_file()))
+def test_every_shipped_checkpoint_runs_with_this_code(name: str, tmp_path: Path) -> None:
+    """Each `learner/pretrained/<name>` loads, its policy fits the task as this code builds it
+    (observation and action sizes), and `morphmimic evaluate` runs on it."""
+    from learner.evaluation import evaluate
+
+    out = tmp_path / name
+    if name.startswith("executor"):
+        assert evaluate.main(["--checkpoint", str(PRETRAINED / name), "--clips", "humanoid3d_walk", "humanoid3d_run",
+                              "--starts", "1", "--no-render", "--out", str(out)]) == 0
+        results = json.loads((out / "results.json").read_text())
+        assert {e["clip_id"] for e in results["episodes"]} == {"humanoid3d_walk", "humanoid3d_run"}
+        return
+    assert evaluate.main(["--checkpoint", str(PRETRAINED / name), "--shapes", "2", "--episode-s", "0.3",
+                          "--no-render", "--out", str(out)]) == 0
+    assert len(json.loads((out / "results.json").read_text())["shapes"]) == 2
+
+
+@pytest.mark.parametrize("name", ["quadruped", "quadruped-curriculum", "lower_biped-curriculum"])
+def test_shipped_controller_stays_up_through_a_moderate_morph(name: str) -> None:
+    """A shipped controller through the default schedule at half strength (taller, shorter,
+    wider, back: 18 s, a rebuild every control step; a few seconds each). The shipped
+    lower_biped is not good enough (it falls within about 2 s even without a morph)."""
+    from learner.evaluation import eval_core, morph_demo
+
+    result = morph_demo.run_morph(eval_core.load(PRETRAINED / name), strength=0.5)
+    assert result["morphs"] > 10
+    assert not result["fell"], f"fell after {result['seconds']:.1f} s of {result['planned_seconds']:.1f} s"
+
+
+@pytest.mark.parametrize("command, flag, bad, allowed", [
+    ("evaluate", "--shapes", "0", "an integer >= 1"),
+    ("evaluate", "--episode-s", "-1", "a finite number > 0"),
+    ("evaluate", "--workers", "two", "an integer >= 1"),
+    ("ablation", "--shapes", "0", "an integer >= 1"),
+    ("learning_curve", "--every", "0", "an integer >= 1"),
+    ("morph_demo", "--every", "0", "an integer >= 1"),
+    ("morph_demo", "--strength", "nan", "a finite number"),
+    ("evaluate", "--seed", "-1", "an integer >= 0"),
+    ("ablation", "--seed", "-1", "an integer >= 0"),
+    ("learning_curve", "--target", "nan", "a number in [0, 100]"),
+    ("learning_curve", "--target", "150", "a number in [0, 100]"),
+])
+def test_bad_numbers_are_usage_errors_naming_the_value(command, flag, bad, allowed, capsys) -> None:
+    """Rejected before any checkpoint is read (the checkpoint path does not exist)."""
+    import importlib
+
+    module = importlib.import_module(f"learner.evaluation.{command}")
+    first = "--checkpoints" if command == "ablation" else "--ckpt-dir" if command == "learning_curve" else "--checkpoint"
+    with pytest.raises(SystemExit) as exc:
+        module.main([first, "no/such/checkpoint", flag, bad])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert f"argument {flag}: '{bad}'" in err and f"must be {allowed}" in err, err

@@ -1,0 +1,119 @@
+"""`morphmimic evaluate` on an executor checkpoint (learner/evaluation/executor_report.py, reached through
+learner/evaluation/evaluate.py) and the executor ablation table (learner/evaluation/executor_ablation.py)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from tests.learner.evaluation.executor_checkpoints import tiny_executor
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory) -> Path:
+    return tiny_executor(tmp_path_factory.mktemp("ckpt"))
+
+
+@pytest.mark.render
+def test_evaluate_writes_results_summary_chart_and_strips(run_dir: Path, tmp_path: Path, capsys) -> None:
+    from learner.evaluation import evaluate
+
+    out = tmp_path / "eval"
+    argv = ["--checkpoint", str(run_dir), "--clips", "humanoid3d_walk", "humanoid3d_run", "--starts", "2", "--out", str(out)]
+    assert evaluate.main(argv) == 0
+    printed = capsys.readouterr().out.splitlines()
+    assert [ln.split(":")[0] for ln in printed if "success" in ln] == [
+        "[evaluate] xtiny train", "[evaluate] xtiny test", "[evaluate] xtiny all"]
+    res = json.loads((out / "results.json").read_text())
+    assert set(res) == {"meta", "summary", "episodes"}
+    assert res["meta"]["starts"] == 2 and res["meta"]["clips"] == ["humanoid3d_walk", "humanoid3d_run"]
+    assert set(res["summary"]) == {"overall", "splits", "classes", "clips"}
+    assert set(res["summary"]["splits"]) == {"train", "test"}
+    assert len(res["episodes"]) == 4 and {e["start_s"] for e in res["episodes"]} >= {0.0}
+    for key in ("success_pct", "phc_success_pct", "mpjpe_mm", "reward_per_step"):
+        assert key in res["summary"]["overall"]
+    for e in res["episodes"]:
+        assert {"success", "phc_success", "mpjpe_mm", "reward_per_step", "split", "label"} <= set(e)
+    text = (out / "summary.md").read_text()
+    assert "## By split" in text and "## By class" in text and "| `humanoid3d_run` | test |" in text
+    for png in ("clips.png", "best.png", "worst.png"):
+        assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", png
+
+
+def test_evaluate_a_folder_of_npz_clips(run_dir: Path, tmp_path: Path) -> None:
+    from common.motion.library import MotionLibrary
+    from learner.evaluation import evaluate
+
+    MotionLibrary().clip("humanoid3d_run").save(tmp_path / "clips" / "fast.npz")
+    out = tmp_path / "eval"
+    assert evaluate.main(["--checkpoint", str(run_dir), "--clips", str(tmp_path / "clips"), "--starts", "1",
+                          "--out", str(out), "--no-render"]) == 0
+    res = json.loads((out / "results.json").read_text())
+    assert list(res["summary"]["clips"]) == ["imported/fast"]
+    assert res["summary"]["clips"]["imported/fast"]["split"] == "imported"
+    assert res["meta"]["sources"] == {"imported/fast": str(tmp_path / "clips" / "fast.npz")}
+    assert not (out / "best.png").exists()
+
+
+@pytest.mark.parametrize("bad, says", [
+    (["--clips", "humanoid3d_nope"], "argument --clips: 'humanoid3d_nope' is no humanoid clip id"),
+    (["--clips", "no/such/file.npz"], "argument --clips: file 'no/such/file.npz' does not exist"),
+    (["--clips", "{empty}"], "argument --clips: folder '{empty}' holds no .npz clips"),
+    (["--starts", "0"], "argument --starts: '0' must be an integer >= 1"),
+])
+def test_bad_clips_and_starts_are_usage_errors_naming_the_value(run_dir: Path, tmp_path: Path, bad, says, capsys) -> None:
+    from learner.evaluation import evaluate
+
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    bad = [b.replace("{empty}", str(empty)) for b in bad]
+    with pytest.raises(SystemExit) as exc:
+        evaluate.main(["--checkpoint", str(run_dir), *bad, "--out", str(tmp_path / "e")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert says.replace("{empty}", str(empty)) in err, err
+    assert not (tmp_path / "e").exists()
+
+
+def test_a_clip_for_another_character_is_a_usage_error(run_dir: Path, tmp_path: Path, capsys) -> None:
+    from common.motion.library import MotionLibrary
+    from learner.evaluation import evaluate
+
+    MotionLibrary().clip("mass/walk").save(tmp_path / "biped.npz")
+    with pytest.raises(SystemExit) as exc:
+        evaluate.main(["--checkpoint", str(run_dir), "--clips", str(tmp_path / "biped.npz"), "--no-render"])
+    assert exc.value.code == 2
+    assert "is for the 'biped' character, not 'humanoid'" in capsys.readouterr().err
+
+
+def test_executor_ablation_table_has_one_row_per_arm(tmp_path: Path, capsys) -> None:
+    from learner.evaluation import ablation
+
+    torque = tiny_executor(tmp_path, "arm-torque")
+    pd = tiny_executor(tmp_path, "arm-pd", actuation="pd", termination="sum", reactive_init=False)
+    out = tmp_path / "abl"
+    argv = ["--checkpoints", str(torque), str(pd), "--clips", "humanoid3d_walk", "humanoid3d_run", "--starts", "1",
+            "--out", str(out)]
+    assert ablation.main(argv) == 0
+    text = (out / "ablation.md").read_text()
+    assert "| `arm-torque` | torque · per-term · balancer · reactive init | 0 |" in text
+    assert "| `arm-pd` | pd · sum rule · balancer · no reactive init | 0 |" in text
+    rows = json.loads((out / "ablation.json").read_text())
+    assert [r["name"] for r in rows] == ["arm-torque", "arm-pd"]
+    assert all(set(r["summary"]["splits"]) == {"train", "test"} for r in rows)
+    capsys.readouterr()
+    assert ablation.main(argv) == 0
+    assert capsys.readouterr().out.count("[ablation] reusing") == 2  # same checkpoints, clips and starts
+
+
+def test_ablation_refuses_to_mix_executor_and_shape_checkpoints(tmp_path: Path, capsys) -> None:
+    from learner.evaluation import ablation
+    from tests.learner.evaluation.test_evaluate import _tiny_checkpoint
+
+    _tiny_checkpoint(tmp_path, "walker")
+    arm = tiny_executor(tmp_path, "arm")
+    with pytest.raises(SystemExit) as exc:
+        ablation.main(["--checkpoints", str(tmp_path / "walker"), str(arm), "--out", str(tmp_path / "abl")])
+    assert exc.value.code == 2 and "executor checkpoints" in capsys.readouterr().err

@@ -1,0 +1,146 @@
+"""The learning curve's bookkeeping: wall time of old checkpoints and reuse of earlier rows."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+
+import pytest
+
+from learner import checkpoint
+from learner.evaluation.learning_curve import _earlier_rows, _wall_from_file_times, every_nth
+
+
+def _fake_checkpoints(tmp_path, stamps: dict[int, float]):
+    out = []
+    for iteration, t in stamps.items():
+        d = tmp_path / f"{iteration:08d}"
+        d.mkdir()
+        (d / checkpoint.FILE).write_bytes(b"")
+        os.utime(d / checkpoint.FILE, (t, t))
+        out.append(d)
+    return out
+
+
+def test_wall_time_from_file_times_leaves_out_the_pause_between_sessions(tmp_path):
+    """10 s per iteration, a checkpoint every 10; a 2-hour pause between iterations 30 and 40;
+    config.json rewritten by the resume (later than the first checkpoint)."""
+    t0 = 1_000_000.0
+    ckpts = _fake_checkpoints(tmp_path, {10: t0 + 100, 20: t0 + 200, 30: t0 + 300, 40: t0 + 7500, 50: t0 + 7600})
+    wall = _wall_from_file_times(ckpts, start=t0)
+    assert [wall[c] for c in ckpts] == pytest.approx([100, 200, 300, 400, 500])
+    resumed = _wall_from_file_times(ckpts, start=t0 + 7300)
+    assert [resumed[c] for c in ckpts] == pytest.approx([100, 200, 300, 400, 500])
+
+
+def test_wall_time_never_runs_backwards_when_a_checkpoint_was_copied_later(tmp_path):
+    """A lineage directory mixing copies (new file times) with the original checkpoints: the
+    copied one counts at the median rate instead of making the clock go back."""
+    t0 = 1_000_000.0
+    ckpts = _fake_checkpoints(tmp_path, {10: t0 + 100, 20: t0 + 200, 30: t0 + 90_000, 40: t0 + 400, 50: t0 + 500})
+    wall = [_wall_from_file_times(ckpts, start=t0)[c] for c in ckpts]
+    assert all(b > a for a, b in zip(wall, wall[1:])), wall
+    assert wall[:2] == pytest.approx([100, 200])
+
+
+def test_earlier_rows_are_reused_only_for_the_same_protocol_and_another_is_refused(tmp_path):
+    path = tmp_path / "curve.json"
+    rows = [{"iteration": 10, "fall_down_pct": 90.0}]
+    path.write_text(json.dumps({"shapes": 100, "episode_s": 10.0, "seed": 2019, "extreme": "base", "rows": rows}))
+    same = argparse.Namespace(shapes=100, episode_s=10.0, seed=2019, box_scale=1.0)
+    assert _earlier_rows(path, same) == ({10: rows[0]}, {})  # a curve.json from before --box-scale: the whole box
+    before = path.read_text()
+    with pytest.raises(SystemExit, match=r"shapes 100.*asks for shapes 300.*another --out"):
+        _earlier_rows(path, argparse.Namespace(shapes=300, episode_s=10.0, seed=2019, box_scale=1.0))
+    with pytest.raises(SystemExit, match=r"box_scale 1\.0.*asks for box_scale 0\.5"):
+        _earlier_rows(path, argparse.Namespace(shapes=100, episode_s=10.0, seed=2019, box_scale=0.5))
+    assert path.read_text() == before
+    path.write_text("{not json")
+    with pytest.raises(SystemExit, match="unreadable curve"):
+        _earlier_rows(path, same)
+
+
+def test_rows_from_before_the_extreme_ranking_changed_are_stale(tmp_path):
+    """A curve.json without the "extreme" version ranked the extreme 10% from the box centre:
+    its rows come back as stale (measured again where the checkpoint still exists)."""
+    path = tmp_path / "curve.json"
+    rows = [{"iteration": 10, "fall_down_pct": 90.0, "fall_down_pct_extreme10": 95.0}]
+    path.write_text(json.dumps({"shapes": 100, "episode_s": 10.0, "seed": 2019, "box_scale": 1.0, "rows": rows}))
+    assert _earlier_rows(path, argparse.Namespace(shapes=100, episode_s=10.0, seed=2019, box_scale=1.0)) == ({}, {10: rows[0]})
+
+
+def test_rows_of_checkpoints_gone_since_are_kept_in_order(tmp_path):
+    """A run keeps only its newest checkpoints: the curve keeps the rows measured before the
+    older ones were deleted, and adds the new checkpoint's row in iteration order."""
+    import dataclasses
+
+    from learner.evaluation import learning_curve
+    from learner.learner import Learner
+    from learner.presets import PRESETS
+
+    cfg = dataclasses.replace(PRESETS["lower_biped-tiny"][1], name="tiny")
+    state = Learner(cfg).state_dict()
+    state["iteration"], state["env_steps"] = 7, 7168
+    checkpoint.save(tmp_path / "ckpt", 7, state, keep=1)
+    out = tmp_path / "curve"
+    out.mkdir()
+    gone = {"iteration": 3, "env_steps": 3072, "wall_s": 30.0, "shapes": 2, "task_achievement": 1.0,
+            "fall_down_pct": 50.0, "fall_down_pct_extreme10": 100.0, "mean_return": 2.0, "mean_seconds": 0.1}
+    (out / "curve.json").write_text(json.dumps({"shapes": 2, "episode_s": 0.2, "seed": 2019, "box_scale": 1.0,
+                                                "extreme": "base", "rows": [gone]}))
+    argv = ["--ckpt-dir", str(tmp_path / "ckpt"), "--shapes", "2", "--episode-s", "0.2", "--out", str(out)]
+    assert learning_curve.main(argv) == 0
+    rows = json.loads((out / "curve.json").read_text())["rows"]
+    assert [r["iteration"] for r in rows] == [3, 7]
+    assert rows[0] == gone and rows[1]["env_steps"] == 7168
+    # The same history written before the extreme-10% ranking changed: the row of the deleted
+    # checkpoint keeps its fall-down % but loses its extreme-10% figure; the live one is measured.
+    (out / "curve.json").write_text(json.dumps({"shapes": 2, "episode_s": 0.2, "seed": 2019, "box_scale": 1.0,
+                                                "rows": [gone, {**rows[1], "fall_down_pct_extreme10": 12.5}]}))
+    assert learning_curve.main(argv) == 0
+    data = json.loads((out / "curve.json").read_text())
+    assert data["extreme"] == "base"
+    assert data["rows"][0] == {**gone, "fall_down_pct_extreme10": None}
+    assert data["rows"][1]["fall_down_pct_extreme10"] in (0.0, 100.0)
+
+
+def test_every_nth_does_not_shift_when_the_oldest_checkpoints_are_deleted(tmp_path):
+    ckpts = _fake_checkpoints(tmp_path, {i: 0.0 for i in range(10, 310, 10)})
+    chosen = [int(c.name) for c in every_nth(ckpts, 6)]
+    assert chosen == [10, 60, 120, 180, 240, 300]
+    later = [int(c.name) for c in every_nth(ckpts[3:], 6)]  # 10, 20, 30 deleted by the run
+    assert later == [40, 60, 120, 180, 240, 300]
+
+
+def test_every_first_keeps_a_checkpoint_saved_off_the_grid(tmp_path):
+    """A run stopped at iteration 173 saves it between 170 and 180: `--every 1` keeps it."""
+    ckpts = sorted(_fake_checkpoints(tmp_path, {150: 0.0, 160: 0.0, 170: 0.0, 173: 0.0, 180: 0.0, 190: 0.0}))
+    assert [int(c.name) for c in every_nth(ckpts, 1)] == [150, 160, 170, 173, 180, 190]
+
+
+def test_curve_end_to_end_writes_rows_and_reuses_them(tmp_path, capsys):
+    """Two tiny untrained checkpoints: the curve evaluates both, writes curve.json and curve.png;
+    a second call with the same protocol evaluates nothing and keeps the rows."""
+    import dataclasses
+    import json
+
+    from learner.evaluation import learning_curve
+    from learner.learner import Learner
+    from learner.presets import PRESETS
+
+    cfg = PRESETS["lower_biped-tiny"][1]
+    state = Learner(dataclasses.replace(cfg, name="tiny")).state_dict()
+    for it in (0, 10):
+        checkpoint.save(tmp_path / "ckpt", it, {**state, "iteration": it, "env_steps": it * 1024}, keep=5)
+    argv = ["--ckpt-dir", str(tmp_path / "ckpt"), "--shapes", "2", "--episode-s", "0.3", "--out", str(tmp_path / "curve")]
+    assert learning_curve.main(argv) == 0
+    first = capsys.readouterr().out
+    assert first.count("[curve] it") == 2
+    assert "reached 20% fall-down" in first or "never reached 20%" in first
+    data = json.loads((tmp_path / "curve" / "curve.json").read_text())
+    assert [r["iteration"] for r in data["rows"]] == [0, 10] and all(0 <= r["fall_down_pct"] <= 100 for r in data["rows"])
+    assert (tmp_path / "curve" / "curve.png").read_bytes()[:4] == b"\x89PNG"
+    assert learning_curve.main(argv) == 0
+    assert capsys.readouterr().out.count("[curve] it") == 0
+    assert json.loads((tmp_path / "curve" / "curve.json").read_text())["rows"] == data["rows"]
