@@ -152,6 +152,12 @@ class ImitateEnv:
         self.allowed_contact = np.zeros(self.model.nbody, bool)
         self.allowed_contact[allowed] = True
         self.allowed_contact[0] = True
+        feet = {int(self.model.geom(g).bodyid[0]) for g in ch.foot_geoms}
+        self.feet_contact = np.zeros(self.model.nbody, bool)
+        """Won & Lee's fall rule: a floor contact of any body but the feet (and what hangs below
+        them) is a fall, whatever `shin_contact_is_fall` says (`paper_fell`)."""
+        self.feet_contact[[b for b in range(self.model.nbody) if any(self._descends(b, f) for f in feet)]] = True
+        self.feet_contact[0] = True
         self.length_m = float(ch.length_m) if ch.is_swimmer else 0.0
 
     def _descends(self, b: int, ancestor: int) -> bool:
@@ -326,6 +332,19 @@ class ImitateEnv:
                 return True
         return False
 
+    def paper_fell(self) -> bool:
+        """Won & Lee 2019's fall: a walker's floor contact of any body other than the feet (the
+        quadruped's shins included); for a swimmer, `fell`. Reported beside the task's own rule
+        by `morphmimic evaluate` (`fall_down_pct_paper_rule`)."""
+        if self.character.is_swimmer:
+            return self.fell()
+        d = self.data
+        for i in range(d.ncon):
+            c = d.contact[i]
+            if not (self.feet_contact[self.model.geom_bodyid[c.geom1]] and self.feet_contact[self.model.geom_bodyid[c.geom2]]):
+                return True
+        return False
+
     def fall_bodies(self) -> list[str]:
         """The names of the bodies whose contacts end the episode as a fall now (sorted; empty
         for a swimmer, whose fall is its root's distance): why a shape fell, for evaluation."""
@@ -353,7 +372,7 @@ class ImitateEnv:
         obs = self._obs(body_frame)
         truncated = self.k >= self.cfg.episode_steps and not fell
         info = {"diverged": False, "fell": fell, "task_reward": r_task, "imitation_reward": r_imit, "reg_reward": r_reg,
-                "terms": terms}
+                "terms": terms, "fell_paper_rule": fell or self.paper_fell()}
         if fell and not self.character.is_swimmer:
             info["fall_bodies"] = self.fall_bodies()
         return obs, r_imit + r_task + r_reg, fell, truncated, info

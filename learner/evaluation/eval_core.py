@@ -122,7 +122,7 @@ def run_episode(env, policy: GaussianPolicy, params: np.ndarray, seed: int,
     obs, _ = env.reset(seed, params)
     bob = reference_root_bob(env)
     ret = task = imit = 0.0
-    fell = diverged = False
+    fell = diverged = fell_paper = False
     fall_bodies: list[str] = []
     k = 0
     while True:
@@ -132,6 +132,7 @@ def run_episode(env, policy: GaussianPolicy, params: np.ndarray, seed: int,
         ret += r
         task += float(info.get("task_reward", 0.0))
         imit += float(info.get("imitation_reward", 0.0))
+        fell_paper = fell_paper or bool(info.get("fell_paper_rule", False))
         if on_step is not None:
             on_step(env, k)
         if term or trunc:
@@ -140,7 +141,8 @@ def run_episode(env, policy: GaussianPolicy, params: np.ndarray, seed: int,
             fall_bodies = list(info.get("fall_bodies", [])) if fell else []
             break
     return {"return": ret, "task_reward": task, "imitation_reward": imit, "steps": k, "fell": fell,
-            "diverged": diverged, "seconds": k / env.cfg.control_hz, "fall_bodies": fall_bodies, **bob}
+            "diverged": diverged, "seconds": k / env.cfg.control_hz, "fall_bodies": fall_bodies,
+            "fell_paper_rule": fell_paper or fell or diverged, **bob}
 
 
 def reference_root_bob(env) -> dict[str, float]:
@@ -179,10 +181,12 @@ def falls_by_root_range(results: list[dict]) -> list[dict[str, Any]]:
 _WORKER: dict[str, Any] = {}
 
 
-def _init_worker(state_file: str, task_json: dict, episode_s: float, box_scale: float) -> None:
+def _init_worker(state_file: str, imitate_overrides: dict, episode_s: float, box_scale: float) -> None:
     torch.set_num_threads(1)
     loaded = load(state_file)
-    task = eval_task(dataclasses.replace(loaded.cfg.task, **task_json), episode_s, box_scale)
+    cfg = loaded.cfg.task
+    task = eval_task(dataclasses.replace(cfg, imitate=dataclasses.replace(cfg.imitate, **imitate_overrides)),
+                     episode_s, box_scale)
     env = make_env(task, seed=0)
     _WORKER.update(env=env, policy=make_policy(loaded, env.obs_dim, env.act_dim))
 
@@ -194,12 +198,13 @@ def _work(job: tuple[int, np.ndarray, int]) -> dict[str, Any]:
 
 
 def evaluate(loaded: Loaded, shapes: np.ndarray, episode_s: float, seed: int, workers: int = 1,
-             progress: Callable[[int, int], None] | None = None, task_overrides: dict | None = None,
+             progress: Callable[[int, int], None] | None = None, imitate_overrides: dict | None = None,
              box_scale: float = 1.0) -> list[dict]:
     """Run one episode per row of `shapes` (inside the box `eval_task(..., box_scale)` accepts);
-    results in row order. `workers` > 1 uses processes."""
+    results in row order. `workers` > 1 uses processes. `imitate_overrides`: fields of the
+    task's `imitate` section to change (`{"shin_contact_is_fall": True}`: the paper's fall rule)."""
     jobs = [(i, shapes[i], seed + i) for i in range(len(shapes))]
-    init = (str(loaded.path), dict(task_overrides or {}), episode_s, box_scale)
+    init = (str(loaded.path), dict(imitate_overrides or {}), episode_s, box_scale)
     return run_jobs(_init_worker, init, _work, jobs, workers, progress)
 
 
@@ -242,6 +247,7 @@ def summarize(results: list[dict], space, n_shape: int) -> dict[str, Any]:
         "shapes": len(results),
         "task_achievement": float(np.mean([r["task_reward"] for r in results])),
         "fall_down_pct": float(100.0 * fell.mean()),
+        "fall_down_pct_paper_rule": float(100.0 * np.mean([r.get("fell_paper_rule", f) for r, f in zip(results, fell)])),
         "mean_return": float(np.mean([r["return"] for r in results])),
         "mean_seconds": float(np.mean([r["seconds"] for r in results])),
         "diverged": int(sum(r["diverged"] for r in results)),

@@ -45,6 +45,9 @@ def parse(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--box-scale", type=cli_args.box_scale, default=1.0,
                    help="draw the shapes from the box shrunk toward the base shape by this factor, as "
                         "--task.body.shape-box-scale does in training (a curriculum's progress); 1: the paper's protocol")
+    p.add_argument("--fall-rule", choices=("task", "paper"), default="task",
+                   help="what ends an episode: the task's own rule (the quadruped's shins may touch the floor) or "
+                        "Won & Lee's (any body but the feet); both fall-down rates are reported either way")
     p.add_argument("--out", default="", help="output directory (default: <checkpoint dir>/eval)")
     p.add_argument("--map-params", nargs=2, default=None, metavar=("X", "Y"),
                    help="two shape parameters of the maps (default: the run's sampler.plot_params)")
@@ -79,13 +82,14 @@ def markdown(name: str, summary: dict, args: argparse.Namespace, files: list[str
         f"# Evaluation of `{name}`", "",
         f"Checkpoint `{loaded.path}` (iteration {loaded.state.get('iteration')}, "
         f"{int(loaded.state.get('env_steps', 0)):,d} env steps); task `{loaded.cfg.task.name}`, "
-        f"parameterization `{getattr(loaded.cfg.task, 'parameterization', '-')}`.",
+        f"parameterization `{loaded.cfg.task.body.parameterization}`.",
         f"Protocol: {s['shapes']} random shapes (seed {args.seed}), {args.episode_s:g} s episodes, mean action."
         + ("" if args.box_scale == 1.0 else f" Shapes from the box shrunk x{args.box_scale:g} toward the base shape "
            "(not the paper's protocol, which uses the whole box)."), "",
         "| metric | value |", "|---|---|",
         f"| task achievement (mean cumulative R_task) | {s['task_achievement']:.1f} |",
         f"| fall-down % | {s['fall_down_pct']:.1f} |",
+        f"| fall-down % by the paper's rule (any body but the feet) | {s['fall_down_pct_paper_rule']:.1f} |",
         f"| fall-down % on the most extreme 10% of shapes | {s['fall_down_pct_extreme10']:.1f} |",
         f"| mean return (R_imit + R_task + R_reg) | {s['mean_return']:.1f} |",
         f"| mean episode length (s) | {s['mean_seconds']:.1f} |",
@@ -150,13 +154,15 @@ def main(argv: list[str]) -> int:
             last[0] = time.monotonic()
             print(f"[evaluate] {done}/{total} shapes, {time.monotonic() - t0:.0f} s", flush=True)
 
+    overrides = {"shin_contact_is_fall": True} if args.fall_rule == "paper" else {}
     results = eval_core.evaluate(loaded, shapes, args.episode_s, args.seed, args.workers, progress,
-                                 box_scale=args.box_scale)
+                                 imitate_overrides=overrides, box_scale=args.box_scale)
     summary = eval_core.summarize(results, space, n_shape)
     summary["wall_s"] = time.monotonic() - t0
     meta = {"checkpoint": str(loaded.path), "name": loaded.name, "iteration": int(loaded.state.get("iteration", 0)),
             "env_steps": int(loaded.state.get("env_steps", 0)), "seed": args.seed, "episode_s": args.episode_s,
-            "box_scale": args.box_scale, "param_names": list(space.names), "map_params": names}
+            "box_scale": args.box_scale, "param_names": list(space.names), "map_params": names,
+            "fall_rule": args.fall_rule}
 
     def write_results() -> None:
         (out / "results.json").write_text(json.dumps({"meta": meta, "summary": summary, "shapes": results}, indent=1) + "\n")
@@ -190,7 +196,7 @@ def main(argv: list[str]) -> int:
     files.insert(0, str(out / "results.json"))
     (out / "summary.md").write_text(markdown(loaded.name, summary, args, files + [str(out / "summary.md")], loaded))
     print(f"[evaluate] {loaded.name}: task achievement {summary['task_achievement']:.1f}, fall-down "
-          f"{summary['fall_down_pct']:.1f}% ({summary['shapes']} shapes"
+          f"{summary['fall_down_pct']:.1f}% (paper's rule {summary['fall_down_pct_paper_rule']:.1f}%; {summary['shapes']} shapes"
           f"{'' if args.box_scale == 1.0 else f' in the box x{args.box_scale:g}'}, {args.episode_s:g} s), extreme-10% fall-down "
           f"{summary['fall_down_pct_extreme10']:.1f}%, mean return {summary['mean_return']:.1f}, "
           f"return-map min/mean {summary['return_map_uniformity']:.2f}; wrote {out}")

@@ -206,3 +206,26 @@ def test_rotation_vectors_match_scipy() -> None:
     q /= np.linalg.norm(q, axis=1, keepdims=True)
     q[0] = (1.0, 0.0, 0.0, 0.0)
     np.testing.assert_allclose(quat_to_rotvec(q), Rotation.from_quat(q, scalar_first=True).as_rotvec(), atol=1e-12)
+
+
+def test_the_papers_fall_rule_counts_the_quadrupeds_shins() -> None:
+    """With shins allowed on the floor (the quadruped preset), the task's fall comes no earlier
+    than Won & Lee's (any body but the feet), which `info["fell_paper_rule"]` reports, and in
+    some episodes later: a shin touched first."""
+    cfg = TaskConfig(name="quadruped", control_hz=30.0, sim_hz=480.0, episode_s=10.0,
+                     imitate=ImitateConfig(shin_contact_is_fall=False))
+    env = make_env(cfg, seed=0)
+    earlier = 0
+    for seed in range(3):
+        env.reset(seed, env.space.default_array)
+        rng = np.random.default_rng(seed)
+        paper_at = None
+        for k in range(300):
+            _, _, term, trunc, info = env.step(rng.normal(0.0, 1.0, env.act_dim))
+            if info["fell_paper_rule"] and paper_at is None:
+                paper_at = k
+            if term or trunc:
+                break
+        assert term and paper_at is not None and paper_at <= k
+        earlier += paper_at < k
+    assert earlier >= 1

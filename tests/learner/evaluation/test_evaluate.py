@@ -42,7 +42,9 @@ def test_evaluate_writes_json_maps_markdown_and_strips(tmp_path: Path, capsys) -
         assert bool(r["fall_bodies"]) == r["fell"]  # a walker's fall names the bodies that touched the floor
         assert 0.0 < r["ref_root_range_m"] < 0.5 and 0.0 < r["ref_root_step_m"] <= r["ref_root_range_m"]
     assert 0.0 <= res["summary"]["fall_down_pct"] <= 100.0
-    assert "fall-down %" in (out / "summary.md").read_text()
+    # the lower biped's own rule is the paper's (any body but the feet), so the two rates agree
+    assert res["summary"]["fall_down_pct_paper_rule"] == res["summary"]["fall_down_pct"]
+    assert "fall-down %" in (out / "summary.md").read_text() and "paper's rule" in (out / "summary.md").read_text()
     for png in ("map_return.png", "best.png", "worst.png"):
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", png
 
@@ -282,3 +284,20 @@ def test_bad_numbers_are_usage_errors_naming_the_value(command, flag, bad, allow
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert f"argument {flag}: '{bad}'" in err and f"must be {allowed}" in err, err
+
+
+def test_the_papers_fall_rule_can_end_the_episodes() -> None:
+    """`--fall-rule paper` (imitate_overrides shin_contact_is_fall): the episode ends at the
+    paper's fall, so the two fall flags agree; the task's rule lets the shins touch."""
+    from learner.evaluation import eval_core
+
+    loaded = eval_core.load(PRETRAINED / "quadruped")
+    from common.tasks.registry import task_space
+
+    shapes = eval_core.eval_shapes(task_space(loaded.cfg.task), 4, 7)
+    paper = eval_core.evaluate(loaded, shapes, 4.0, 7, imitate_overrides={"shin_contact_is_fall": True})
+    task = eval_core.evaluate(loaded, shapes, 4.0, 7)
+    assert all(r["fell"] == r["fell_paper_rule"] for r in paper)
+    assert all(r["fell_paper_rule"] >= r["fell"] for r in task)
+    assert [r["fell_paper_rule"] for r in paper] == [r["fell_paper_rule"] for r in task]
+    assert all(p["steps"] <= t["steps"] for p, t in zip(paper, task))
