@@ -5,14 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar
 
-from common.config_limits import (
-    Limit,
-    above,
-    at_least,
-    between,
-    check_limits,
-    validated,
-)
+from common.config_limits import Limit, above, at_least, between, check_limits, validated
 
 
 @dataclass(frozen=True)

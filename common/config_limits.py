@@ -21,6 +21,8 @@ import contextlib
 import contextvars
 import dataclasses
 import math
+import types
+import typing
 from dataclasses import dataclass
 
 
@@ -85,19 +87,20 @@ def check_limits(obj) -> None:
                 raise ValueError(f"{flag(prefix, name)} = {value!r} is not allowed: give{each} {limit.describe()}")
 
 
-def unlimited_numeric_fields(cls: type) -> list[str]:
-    """Numeric fields of a config class (int, float, tuples of them) without a LIMITS entry."""
-    import typing
+def _numeric(hint) -> bool:
+    """int or float (not bool), an optional one, or a tuple of them."""
+    args = [a for a in typing.get_args(hint) if a is not type(None) and a is not Ellipsis]
+    if typing.get_origin(hint) in (tuple, typing.Union, types.UnionType):
+        return bool(args) and all(_numeric(a) for a in args)
+    return hint in (int, float)
 
+
+def unlimited_numeric_fields(cls: type) -> list[str]:
+    """Numeric fields of a config class (int, float, optional or tuples of them) without a
+    LIMITS entry."""
     hints = typing.get_type_hints(cls)
     limits = getattr(cls, "LIMITS", {})
-    out = []
-    for f in dataclasses.fields(cls):
-        text = str(hints[f.name])
-        numeric = hints[f.name] in (int, float) or any(k in text for k in ("int", "float")) and "str" not in text
-        if numeric and not dataclasses.is_dataclass(hints[f.name]) and f.name not in limits:
-            out.append(f.name)
-    return out
+    return [f.name for f in dataclasses.fields(cls) if _numeric(hints[f.name]) and f.name not in limits]
 
 
 _DEFERRED = contextvars.ContextVar("morphmimic_deferred_config_checks", default=False)

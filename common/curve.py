@@ -115,7 +115,7 @@ class Gatekeeper(ThreadAuthenticator):
 
     def __init__(self, context: zmq.Context, keys: RunKeys):
         super().__init__(context)
-        self.keys_by_z85 = {k: role for k, role in keys.roles().items()}
+        self.keys_by_z85 = keys.roles()
         self.denied = 0
 
     @classmethod

@@ -13,14 +13,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from common.config_limits import (
-    Limit,
-    above,
-    at_least,
-    between,
-    check_limits,
-    validated,
-)
+from common.config_limits import Limit, above, at_least, between, check_limits, validated
 
 
 @dataclass(frozen=True)

@@ -23,25 +23,23 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
-def usage() -> str:
-    width = max(len(name) for name in COMMANDS)
-    lines = ["usage: morphmimic <command> [options]   (morphmimic <command> --help for its options)", "", "commands:"]
-    lines += [f"  {name:<{width}}  {text}" for name, (_, text) in COMMANDS.items()]
-    return "\n".join(lines)
+def dispatch(prog: str, what: str, table: dict[str, tuple[str, str]], argv: list[str]) -> int:
+    """Run `table[argv[0]]`'s module's `main(argv[1:])`; `--help` lists the table; an unknown
+    name is a one-line usage error (exit 2). Also `morphmimic bench`'s dispatcher."""
+    width = max(len(name) for name in table)
+    lines = [f"usage: {prog} <{what}> [options]   ({prog} <{what}> --help for its options)", "", f"{what}s:"]
+    lines += [f"  {name:<{width}}  {text}" for name, (_, text) in table.items()]
+    if not argv or argv[0] in ("-h", "--help"):
+        print("\n".join(lines))
+        return 0
+    if argv[0] not in table:
+        print(f"{prog}: unknown {what} {argv[0]!r}; choose one of {', '.join(table)}", file=sys.stderr)
+        return 2
+    return int(importlib.import_module(table[argv[0]][0]).main(argv[1:]) or 0)
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if not argv or argv[0] in ("-h", "--help"):
-        print(usage())
-        return 0
-    name, rest = argv[0], argv[1:]
-    if name not in COMMANDS:
-        print(f"morphmimic: unknown command {name!r}; choose one of {', '.join(COMMANDS)}", file=sys.stderr)
-        print(usage(), file=sys.stderr)
-        return 2
-    module = importlib.import_module(COMMANDS[name][0])
-    return int(module.main(rest) or 0)
+    return dispatch("morphmimic", "command", COMMANDS, list(sys.argv[1:] if argv is None else argv))
 
 
 if __name__ == "__main__":

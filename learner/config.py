@@ -10,14 +10,7 @@ from dataclasses import dataclass, field
 from typing import ClassVar, Literal
 
 from actors.config import ActorConfig
-from common.config_limits import (
-    Limit,
-    above,
-    at_least,
-    between,
-    check_limits,
-    validated,
-)
+from common.config_limits import Limit, above, at_least, between, check_limits, validated
 from common.policy import PolicyConfig
 from common.tasks.base import TaskConfig
 from common.tasks.body_config import BodyConfig

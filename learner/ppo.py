@@ -13,14 +13,7 @@ from typing import ClassVar
 import torch
 from torch import nn
 
-from common.config_limits import (
-    Limit,
-    above,
-    at_least,
-    between,
-    check_limits,
-    validated,
-)
+from common.config_limits import Limit, above, at_least, between, check_limits, validated
 from common.policy import GaussianPolicy, ValueNet
 
 

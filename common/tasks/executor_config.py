@@ -6,14 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
-from common.config_limits import (
-    Limit,
-    above,
-    at_least,
-    between,
-    check_limits,
-    validated,
-)
+from common.config_limits import Limit, above, at_least, between, check_limits, validated
 from common.tasks.executor_rewards import TERMS
 
 

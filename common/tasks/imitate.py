@@ -158,6 +158,9 @@ class ImitateEnv:
         them) is a fall, whatever `shin_contact_is_fall` says (`paper_fell`)."""
         self.feet_contact[[b for b in range(self.model.nbody) if any(self._descends(b, f) for f in feet)]] = True
         self.feet_contact[0] = True
+        self.rules_differ = not self.cfg.imitate.shin_contact_is_fall and not ch.is_swimmer
+        """Only then can the paper's fall come before the task's: the contact loop is run twice
+        only for such a body."""
         self.length_m = float(ch.length_m) if ch.is_swimmer else 0.0
 
     def _descends(self, b: int, ancestor: int) -> bool:
@@ -372,7 +375,7 @@ class ImitateEnv:
         obs = self._obs(body_frame)
         truncated = self.k >= self.cfg.episode_steps and not fell
         info = {"diverged": False, "fell": fell, "task_reward": r_task, "imitation_reward": r_imit, "reg_reward": r_reg,
-                "terms": terms, "fell_paper_rule": fell or self.paper_fell()}
+                "terms": terms, "fell_paper_rule": fell or (self.rules_differ and self.paper_fell())}
         if fell and not self.character.is_swimmer:
             info["fall_bodies"] = self.fall_bodies()
         return obs, r_imit + r_task + r_reg, fell, truncated, info

@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import importlib
-import sys
-
 BENCHMARKS: dict[str, tuple[str, str]] = {
     "throughput": ("learner.bench.throughput", "end-to-end collection vs pure simulation, learner share, transport bytes/s"),
     "learner": ("learner.bench.learner_update", "PPO update per minibatch step: the reference loop vs PPO.update, same data"),
@@ -17,12 +14,6 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
 
 
 def main(argv: list[str]) -> int:
-    if not argv or argv[0] in ("-h", "--help"):
-        print("usage: morphmimic bench <name> [options]\n\nbenchmarks:")
-        for name, (_, text) in BENCHMARKS.items():
-            print(f"  {name:<11} {text}")
-        return 0
-    if argv[0] not in BENCHMARKS:
-        print(f"morphmimic bench: unknown benchmark {argv[0]!r}; choose one of {', '.join(BENCHMARKS)}", file=sys.stderr)
-        return 2
-    return int(importlib.import_module(BENCHMARKS[argv[0]][0]).main(argv[1:]) or 0)
+    from learner.cli import dispatch
+
+    return dispatch("morphmimic bench", "benchmark", BENCHMARKS, argv)
