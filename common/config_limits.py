@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import dataclasses
+import functools
 import math
 import types
 import typing
@@ -73,17 +74,29 @@ def flag(prefix: str, name: str) -> str:
     return "--" + (prefix + "." if prefix else "") + name.replace("_", "-")
 
 
+@functools.cache
+def _tuple_fields(cls: type) -> frozenset[str]:
+    """Fields of a config class declared as tuples (the others take one value)."""
+    hints = typing.get_type_hints(cls)
+    return frozenset(f.name for f in dataclasses.fields(cls) if typing.get_origin(hints[f.name]) is tuple)
+
+
 def check_limits(obj) -> None:
-    """ValueError naming the first field of `obj` outside its `LIMITS` entry."""
+    """ValueError naming the first field of `obj` outside its `LIMITS` entry (or holding a list
+    where one value belongs, or one value where a list does)."""
     prefix = getattr(obj, "FLAG_PREFIX", "")
+    tuples = _tuple_fields(type(obj))
     for name, limit in obj.LIMITS.items():
         value = getattr(obj, name)
         if value is None:
             continue
-        values = value if isinstance(value, (tuple, list)) else (value,)
-        for x in values:
+        many = name in tuples
+        if isinstance(value, (tuple, list)) != many:
+            raise ValueError(f"{flag(prefix, name)} = {value!r} is not allowed: give "
+                             f"{'a list of values, each ' if many else 'one value, '}{limit.describe()}")
+        for x in value if many else (value,):
             if isinstance(x, bool) or not isinstance(x, (int, float)) or not limit.allows(float(x)):
-                each = " each" if isinstance(value, (tuple, list)) else ""
+                each = " each" if many else ""
                 raise ValueError(f"{flag(prefix, name)} = {value!r} is not allowed: give{each} {limit.describe()}")
 
 

@@ -117,7 +117,17 @@ class RunConfig:
 
     @staticmethod
     def from_json(text: str) -> "RunConfig":
-        return _from_dict(RunConfig, json.loads(text))
+        """A saved configuration (a checkpoint's); ValueError naming what is wrong with it,
+        whatever its JSON holds (a value out of range, of another type, a section that is not one)."""
+        try:
+            raw = json.loads(text)
+            if not isinstance(raw, dict):
+                raise ValueError(f"expected a JSON object, got {type(raw).__name__}")
+            return _from_dict(RunConfig, raw)
+        except ValueError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - a wrong type anywhere in someone else's file
+            raise ValueError(f"saved configuration is not a RunConfig ({type(exc).__name__}: {exc})") from None
 
 
 _NESTED = {"task": TaskConfig, "policy": PolicyConfig, "ppo": PPOConfig, "actors": ActorConfig, "sampler": SamplerConfig,

@@ -64,7 +64,11 @@ def load(path: str | Path) -> Loaded:
         raise SystemExit(str(exc)) from None
     if "config" not in state or "policy" not in state:
         raise SystemExit(f"{file} holds no 'config'/'policy': not a morphmimic training checkpoint")
-    return Loaded(RunConfig.from_json(state["config"]), state, file)
+    try:
+        cfg = RunConfig.from_json(str(state["config"]))
+    except ValueError as exc:
+        raise SystemExit(f"{file}: its saved configuration is refused: {exc}") from None
+    return Loaded(cfg, state, file)
 
 
 def check_box_scale(box_scale: float) -> float:

@@ -83,3 +83,20 @@ def test_a_saved_config_with_a_bad_value_is_refused_by_name() -> None:
     text = RunConfig().to_json().replace('"lr": 0.0003', '"lr": -1.0')
     with pytest.raises(ValueError, match=r"--ppo.lr = -1.0 is not allowed"):
         RunConfig.from_json(text)
+
+
+@pytest.mark.parametrize("edit", [
+    lambda c: c["ppo"].update(lr="abc"),
+    lambda c: c.update(task=5),
+    lambda c: c["policy"].update(hidden="wide"),
+    lambda c: c["actors"].update(num_actors=[2]),
+])
+def test_a_saved_config_of_the_wrong_type_is_a_value_error_naming_it(edit) -> None:
+    import json
+
+    raw = json.loads(RunConfig().to_json())
+    edit(raw)
+    with pytest.raises(ValueError):
+        RunConfig.from_json(json.dumps(raw))
+    with pytest.raises(ValueError, match="expected a JSON object"):
+        RunConfig.from_json("[1, 2]")
