@@ -1,5 +1,7 @@
 """Start the local two-worker test cluster: a Ray head and two worker nodes, all on this
-machine (loopback), tagged with the custom resources the learner places by.
+machine (loopback), tagged with the custom resources the learner places by: the head hosts the
+sampler and up to `--learner-slots` data-parallel learner replicas beside the training process
+(`--learner.replicas`), each worker `--rollout-per-worker` rollout actors.
 
     python deploy/local_cluster.py            # prints the address, runs until Ctrl-C
     RAY_ADDRESS=<printed address> python -m learner.main --mode cluster
@@ -16,13 +18,14 @@ import threading
 from ray.cluster_utils import Cluster
 
 
-def start(rollout_per_worker: int = 1, cpus_per_worker: int = 1) -> Cluster:
+def start(rollout_per_worker: int = 1, cpus_per_worker: int = 1, learner_slots: int = 1, workers: int = 2) -> Cluster:
     cluster = Cluster(
         initialize_head=True,
         connect=False,
-        head_node_args={"num_cpus": 0, "resources": {"morphmimic_sampler": 1}, "include_dashboard": False},
+        head_node_args={"num_cpus": 0, "resources": {"morphmimic_sampler": 1, "morphmimic_learner": learner_slots},
+                        "include_dashboard": False},
     )
-    for _ in range(2):
+    for _ in range(workers):
         cluster.add_node(num_cpus=cpus_per_worker, resources={"morphmimic_rollout": rollout_per_worker})
     cluster.wait_for_nodes()
     return cluster
@@ -32,8 +35,10 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--rollout-per-worker", type=int, default=1, help="rollout actors each worker node may host")
     parser.add_argument("--cpus-per-worker", type=int, default=1, help="CPUs each worker node advertises")
+    parser.add_argument("--learner-slots", type=int, default=1,
+                        help="data-parallel learner replicas the head may host besides the training process")
     args = parser.parse_args()
-    cluster = start(args.rollout_per_worker, args.cpus_per_worker)
+    cluster = start(args.rollout_per_worker, args.cpus_per_worker, args.learner_slots)
     actors = 2 * args.rollout_per_worker
     print(f"two-worker test cluster up: head + 2 workers at {cluster.address}")
     print("point the learner at it:")

@@ -5,6 +5,8 @@ over ZeroMQ; Ray starts, places, restarts and stops processes.
 Custom resources (set on `ray start --resources=...`, see deploy/README.md):
     morphmimic_rollout  one unit per rollout actor a node may host
     morphmimic_sampler  the node that hosts the sampler service
+    morphmimic_learner  one unit per data-parallel learner replica (`--learner.replicas`) a node may
+                        host besides the training process itself
 A cluster without them still works: actors are then spread over the nodes (SPREAD) and a
 warning says so.
 """
@@ -20,6 +22,7 @@ log = logging.getLogger(__name__)
 
 ROLLOUT_RESOURCE = "morphmimic_rollout"
 SAMPLER_RESOURCE = "morphmimic_sampler"
+LEARNER_RESOURCE = "morphmimic_learner"
 
 
 @dataclass(frozen=True)
@@ -77,7 +80,7 @@ def _use_token_auth_if_available() -> None:
         pass
 
 
-def connect(mode: str, explicit_address: str, num_actors: int, actor_cpus: float) -> RayContext:
+def connect(mode: str, explicit_address: str, num_actors: int, actor_cpus: float, learner_replicas: int = 1) -> RayContext:
     """Attach to a running cluster or start a private local Ray instance, per `mode`."""
     import ray
 
@@ -100,7 +103,8 @@ def connect(mode: str, explicit_address: str, num_actors: int, actor_cpus: float
         ray.init(
             address="local",
             num_cpus=cpus,
-            resources={ROLLOUT_RESOURCE: float(num_actors), SAMPLER_RESOURCE: 1.0},
+            resources={ROLLOUT_RESOURCE: float(num_actors), SAMPLER_RESOURCE: 1.0,
+                       **({LEARNER_RESOURCE: float(learner_replicas - 1)} if learner_replicas > 1 else {})},
             include_dashboard=False,
             logging_level=logging.WARNING,
         )

@@ -22,6 +22,37 @@ from sampler.config import SamplerConfig
 
 @dataclass(frozen=True)
 @validated
+class LearnerConfig:
+    """Where the PPO update runs: the device, and how many data-parallel processes share it."""
+
+    device: Literal["cpu", "cuda", "auto"] = "cpu"
+    """cpu; cuda (refused in one line on a node without a GPU); auto: cuda when this node has
+    one, else cpu. PPO, the observation normalizer and the sampler's marginal value fit run on
+    it; the weights go to the actors as CPU arrays whatever it is."""
+    replicas: int = 1
+    """Data-parallel learner processes (`learner.replicas`): this one plus replicas - 1 Ray
+    actors (one GPU each with cuda), averaging gradients with torch.distributed every minibatch
+    step. Needs Ray (not --mode serial) and a minibatch that divides by it."""
+    threads: int = 0
+    """Torch threads of each learner process; 0: the cores this machine has left after the local
+    actors, shared among the local replicas (at least 1). NOTE: more threads than free cores
+    makes OpenMP spin against the actors."""
+    sync_timeout_s: float = 120.0
+    """A replica that has not joined an all-reduce after this long ends the run (with a checkpoint)."""
+
+    FLAG_PREFIX: ClassVar[str] = "learner"
+    LIMITS: ClassVar[dict[str, Limit]] = {
+        "replicas": between(1, 1024, integer=True), "threads": at_least(0), "sync_timeout_s": above(0),
+    }
+    """Allowed values of the numeric fields (`common.config_limits`)."""
+
+    def validate(self) -> None:
+        """ValueError naming the first value outside what is allowed."""
+        check_limits(self)
+
+
+@dataclass(frozen=True)
+@validated
 class RunConfig:
     name: str = "reach"
     """Run name: outputs go to `<runs_dir>/<name>/`."""
@@ -69,15 +100,13 @@ class RunConfig:
     stall_timeout_s: float = 20.0
     """An actor that sent neither unroll nor heartbeat for this long is counted as stalled and
     excluded until it sends again."""
-    learner_threads: int = 0
-    """Torch threads of the learner; 0: the cores this machine has left after the local actors
-    (at least 1). NOTE: more threads than free cores makes OpenMP spin against the actors."""
     quiet: bool = False
     """Write progress only to log.txt and TensorBoard, not the console."""
     curve: bool = True
     """Authenticate and encrypt every ZeroMQ socket with CURVE, with keys made for this run and
     handed to actors and sampler through Ray: a peer without them is refused and counted
     (`common.curve`). `--no-curve` only to measure what it costs or to debug the wire."""
+    learner: LearnerConfig = field(default_factory=LearnerConfig)
     task: TaskConfig = field(default_factory=TaskConfig)
     policy: PolicyConfig = field(default_factory=PolicyConfig)
     ppo: PPOConfig = field(default_factory=PPOConfig)
@@ -90,7 +119,6 @@ class RunConfig:
         "steps_per_iteration": at_least(1), "max_policy_lag": at_least(0), "seed": between(0, 2**32 - 1, integer=True),
         "checkpoint_every": at_least(1), "keep_checkpoints": at_least(1), "value_pairs_per_iteration": at_least(0),
         "vm_plot_every": at_least(0), "actor_max_restarts": at_least(-1), "stall_timeout_s": above(0),
-        "learner_threads": at_least(0),
     }
     """Allowed values of the numeric fields (`common.config_limits`)."""
 
@@ -102,15 +130,23 @@ class RunConfig:
                 f"--ppo.minibatch {self.ppo.minibatch} exceeds --steps-per-iteration {self.steps_per_iteration}"
             )
         self.task.substeps  # noqa: B018 - validates sim_hz / control_hz
+        replicas = self.learner.replicas
+        if replicas > 1 and self.mode == "serial":
+            raise ValueError(f"--learner.replicas {replicas} needs Ray: give --mode auto, local or cluster, not serial")
+        if self.ppo.minibatch % replicas:
+            raise ValueError(f"--ppo.minibatch {self.ppo.minibatch} does not divide among --learner.replicas {replicas}: "
+                             "give a minibatch that is a multiple of the replicas")
 
     @property
     def resolved_learner_threads(self) -> int:
-        if self.learner_threads > 0:
-            return self.learner_threads
+        """Torch threads of each learner process (`--learner.threads`, or what is left of this machine)."""
+        if self.learner.threads > 0:
+            return self.learner.threads
         import os
 
         local_actors = self.actors.num_actors * self.actors.num_cpus if self.mode != "cluster" else 0
-        return max(1, int((os.cpu_count() or 1) - local_actors))
+        local_learners = self.learner.replicas if self.mode != "cluster" else 1
+        return max(1, int((os.cpu_count() or 1) - local_actors) // local_learners)
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), indent=2, sort_keys=True)
@@ -130,7 +166,7 @@ class RunConfig:
             raise ValueError(f"saved configuration is not a RunConfig ({type(exc).__name__}: {exc})") from None
 
 
-_NESTED = {"task": TaskConfig, "policy": PolicyConfig, "ppo": PPOConfig, "actors": ActorConfig, "sampler": SamplerConfig,
+_NESTED = {"learner": LearnerConfig, "task": TaskConfig, "policy": PolicyConfig, "ppo": PPOConfig, "actors": ActorConfig, "sampler": SamplerConfig,
            "executor": ExecutorConfig, "body": BodyConfig, "imitate": ImitateConfig}
 """Fields that hold a config dataclass (by field name), rebuilt from their JSON objects."""
 

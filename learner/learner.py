@@ -1,5 +1,7 @@
 """`Learner`: the networks, the PPO optimizer and the run's counters; turns unrolls into a
-`Batch`, updates, and produces the `WeightsMsg` actors run. No sockets, no Ray."""
+`Batch`, updates, and produces the `WeightsMsg` actors run. No sockets, no Ray: data-parallel
+replicas (`learner.replicas`) are handed in as an object that starts and finishes their share
+of each update."""
 
 from __future__ import annotations
 
@@ -13,19 +15,27 @@ import torch
 from common import wire
 from common.policy import GaussianPolicy, ValueNet, anneal_log_std, policy_tensors
 from common.tasks.registry import make_env
+from common import device as devices
 from learner.config import RunConfig
+from learner.data_parallel import GradientSync
 from learner.ppo import PPO, Batch
 
 
 class Learner:
     def __init__(self, cfg: RunConfig):
         self.cfg = cfg
+        self.device = devices.resolve(cfg.learner.device)
         torch.manual_seed(cfg.seed)
         env = make_env(cfg.task, seed=cfg.seed)
         self.obs_dim, self.act_dim, self.space = env.obs_dim, env.act_dim, env.space
-        self.policy = GaussianPolicy(self.obs_dim, self.act_dim, cfg.policy)
-        self.value = ValueNet(self.obs_dim, cfg.policy)
+        self.policy = GaussianPolicy(self.obs_dim, self.act_dim, cfg.policy).to(self.device)
+        self.value = ValueNet(self.obs_dim, cfg.policy).to(self.device)
         self.ppo = PPO(self.policy, self.value, cfg.ppo)
+        self.sync: GradientSync | None = None
+        """This process's place in the data-parallel group, once `learner.replicas` has formed it."""
+        self.replicas = None
+        """On rank 0 of a data-parallel group: the `learner.replicas.ReplicaGroup` that runs the
+        other replicas' share of each update."""
         self.generator = torch.Generator().manual_seed(cfg.seed)
         self.rng = np.random.default_rng(cfg.seed)
         self.iteration = 0
@@ -43,7 +53,7 @@ class Learner:
 
     @staticmethod
     def batch_from(unrolls: list[wire.UnrollMsg]) -> Batch:
-        """Concatenate `[T, N]` unrolls along the environment axis into one `[T, B]` batch."""
+        """Concatenate `[T, N]` unrolls along the environment axis into one `[T, B]` CPU batch."""
         cat = lambda name, dtype: torch.as_tensor(  # noqa: E731
             np.concatenate([getattr(u, name) for u in unrolls], axis=1).astype(dtype, copy=False)
         )
@@ -70,14 +80,22 @@ class Learner:
         obs = np.concatenate([u.obs.reshape(-1, self.obs_dim) for u in unrolls])
         params = np.concatenate([u.params.reshape(-1, u.params.shape[-1]) for u in unrolls])
         idx = self.rng.choice(len(obs), size=min(n, len(obs)), replace=False)
-        values = self.ppo.values_of(torch.as_tensor(obs[idx])).numpy()
+        values = self.ppo.values_of(torch.as_tensor(obs[idx], device=self.device)).cpu().numpy()
         return params[idx].astype(np.float32), values.astype(np.float32)
+
+    def apply_update(self, batch: Batch, env_steps: int) -> dict[str, float]:
+        """The PPO update on a CPU batch at `env_steps` into the run (learning-rate schedule and
+        variance controller first): what every data-parallel replica runs on the same batch."""
+        self.ppo.set_progress(env_steps / self.cfg.total_env_steps)
+        anneal_log_std(self.policy, self.cfg.policy, env_steps)
+        return self.ppo.update(batch.to(self.device), self.generator, self.sync)
 
     def update(self, unrolls: list[wire.UnrollMsg]) -> dict[str, float]:
         batch = self.batch_from(unrolls)
-        self.ppo.set_progress(self.env_steps / self.cfg.total_env_steps)
-        anneal_log_std(self.policy, self.cfg.policy, self.env_steps)
-        metrics = self.ppo.update(batch, self.generator)
+        others = self.replicas.start_update(batch, self.env_steps) if self.replicas is not None else None
+        metrics = self.apply_update(batch, self.env_steps)
+        if others is not None:
+            self.replicas.finish_update(others)
         steps = int(batch.rewards.numel())
         self.env_steps += steps
         self.iteration += 1

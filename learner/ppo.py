@@ -6,6 +6,7 @@ tensors, and `PPO.update` takes a `Batch` of time-major `[T, B]` tensors.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import ClassVar
@@ -15,6 +16,7 @@ from torch import nn
 
 from common.config_limits import Limit, above, at_least, between, check_limits, validated
 from common.policy import GaussianPolicy, ValueNet
+from learner.data_parallel import GradientSync
 
 
 @dataclass(frozen=True)
@@ -93,6 +95,9 @@ class Batch:
     rewards: torch.Tensor  # [T, B]
     terminated: torch.Tensor  # [T, B] bool
     truncated: torch.Tensor  # [T, B] bool
+
+    def to(self, device: torch.device) -> "Batch":
+        return self if self.obs.device == device else Batch(*(getattr(self, f.name).to(device) for f in dataclasses.fields(self)))
 
 
 def gae(
@@ -197,9 +202,16 @@ class PPO:
         return torch.cat([self.policy.distribution(obs_raw[i:i + chunk]).log_prob(actions[i:i + chunk]).sum(-1)
                           for i in range(0, obs_raw.shape[0], chunk)])
 
-    def update(self, batch: Batch, generator: torch.Generator | None = None) -> dict[str, float]:
+    def update(self, batch: Batch, generator: torch.Generator | None = None, sync: GradientSync | None = None) -> dict[str, float]:
         """GAE, the value targets' statistics, `epochs` passes of minibatch gradient steps, then
         the observation normalizer's update.
+
+        With `sync` (data-parallel learners, `learner.data_parallel`), every replica runs this on
+        the whole batch with the same generator, so all draw the same minibatches; each takes its
+        own slice of every minibatch (`sync.slice`), and one all-reduce per step averages the
+        gradients, the KL that decides the stop and the metrics. Every replica then applies the
+        same step: their parameters stay equal, and the update is the single learner's up to
+        the order of floating-point sums.
 
         The maths of `learner.ppo_reference.reference_update` (the textbook loop; a test holds the
         two to the same parameters after two updates), with less work around each minibatch
@@ -244,12 +256,14 @@ class PPO:
         steps = policy_steps = 0
         policy_active = True
         for _ in range(cfg.epochs):
-            order = torch.randperm(n, generator=generator)
+            order = torch.randperm(n, generator=generator).to(obs_n.device)
             shuffled = [x.index_select(0, order) for x in per_sample]
             for start in range(0, n - cfg.minibatch + 1, cfg.minibatch):
                 o, act, olp, a, ret, *w = (x[start : start + cfg.minibatch] for x in shuffled)
-                if cfg.normalize_advantages:
+                if cfg.normalize_advantages:  # over the whole minibatch, also when replicas share it
                     a = (a - a.mean()) / (a.std() + 1e-8)
+                if sync is not None:
+                    o, act, olp, a, ret, *w = (x[sync.slice(cfg.minibatch)] for x in (o, act, olp, a, ret, *w))
                 with torch.set_grad_enabled(policy_active):
                     policy_loss, entropy, kl, clip_frac = _policy_losses(
                         policy.mean_net(o), policy.log_std, act, olp, a, w[0] if w else None, cfg)
@@ -259,12 +273,10 @@ class PPO:
                     total = total - cfg.entropy_coef * entropy
                 if cfg.kl_coef:
                     total = total + cfg.kl_coef * kl
-                if not torch.isfinite(total):
+                finite = torch.isfinite(total)
+                if sync is None and not finite:
                     self.skipped_updates += 1
                     continue
-                measured_moving = policy_active  # this KL measures the policy as the update moved it
-                if policy_active and cfg.kl_stop > 0 and policy_steps and kl.item() > cfg.kl_stop:
-                    policy_active = False
                 for p in policy_params:
                     p.grad = None
                 for p in value_params:
@@ -272,14 +284,29 @@ class PPO:
                 # NOTE: once the policy has stopped, only the value loss has a gradient; the
                 # policy's parameters keep grad None, which Adam skips (no moment decay either).
                 (total if policy_active else cfg.vf_coef * value_loss).backward()
+                record = torch.stack([total, policy_loss, value_loss, entropy, kl, clip_frac]).detach()
+                if sync is not None:
+                    # NOTE: a replica whose loss is not finite still joins the all-reduce (the
+                    # others wait in it); then every replica skips the step together.
+                    finite, record = sync.average_(policy_params + value_params, record, finite)
+                    if not finite:
+                        self.skipped_updates += 1
+                        continue
+                    kl = record[4]
+                measured_moving = policy_active  # this KL measures the policy as the update moved it
+                if policy_active and cfg.kl_stop > 0 and policy_steps and kl.item() > cfg.kl_stop:
+                    # This minibatch already moved the policy past the stop: only its value step is taken.
+                    policy_active = False
+                    for p in policy_params:
+                        p.grad = None
                 # NOTE: clipped apart: the value loss's gradient is ~100x the policy's (returns
                 # of ~100), so one joint clip let the value loss set the policy's step.
                 grad_norm = _clip_grad_norm_(policy_params, cfg.max_grad_norm)
                 value_grad_norm = _clip_grad_norm_(value_params, cfg.max_grad_norm)
                 self.optimizer.step()
                 with torch.no_grad():
-                    records.append(torch.stack([total, policy_loss, value_loss, entropy, kl, clip_frac, grad_norm, value_grad_norm,
-                                                torch.tensor(float(measured_moving))]))
+                    records.append(torch.cat([record, torch.stack([grad_norm.to(record), value_grad_norm.to(record),
+                                                                   torch.tensor(float(measured_moving)).to(record)])]))
                 steps += 1
                 policy_steps += policy_active
         normalizer.update(flat(batch.obs))

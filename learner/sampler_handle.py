@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
+import torch
 
 from common.curve import LEARNER, RunKeys
 from common.params import ParamSpace
@@ -69,6 +70,8 @@ class SamplerHandle:
 
         opts = cluster.actor_options(ctx, cluster.SAMPLER_RESOURCE, 0.01, 0.0)
         opts.pop("scheduling_strategy", None)
+        if config.device == "cuda" or (config.device == "auto" and torch.cuda.is_available()):
+            opts["num_gpus"] = 0.1  # NOTE: Ray hides the GPUs from an actor that asks for none
         handle = ray.remote(SamplerActor).options(max_restarts=-1, **opts).remote(config, space, list(clips), service_keys)
         endpoint = ray.get(handle.endpoint.remote(), timeout=120)
 

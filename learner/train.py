@@ -24,6 +24,7 @@ from learner.collector import Collector
 from learner.config import RunConfig
 from learner.health import HealthMonitor
 from learner.learner import Learner
+from learner.replicas import ReplicaGroup
 from learner.run_log import RunLog
 from learner.sampler_handle import SamplerHandle
 from learner.signals import StopFlag
@@ -59,7 +60,10 @@ def find_resume(cfg: RunConfig) -> tuple[Path, tuple[Path, dict] | None]:
 def resumed_learner(cfg: RunConfig, resume_from: tuple[Path, dict] | None) -> Learner:
     """The learner, with the checkpoint's state if resuming; a checkpoint of another task or
     network is a usage error (exit 2) before anything is written."""
-    learner = Learner(cfg)
+    try:
+        learner = Learner(cfg)
+    except ValueError as exc:  # a device this machine does not have
+        usage_error(str(exc))
     if resume_from is not None:
         path, state = resume_from
         try:
@@ -119,7 +123,8 @@ def _start(cfg: RunConfig) -> Run:
     if resume_from is not None:
         out.line(f"[morphmimic] resumed {resume_from[0]} at iteration {learner.iteration}, {learner.env_steps:,d} env steps")
     stop = StopFlag()
-    ctx = None if cfg.mode == "serial" else cluster.connect(cfg.mode, cfg.ray_address, cfg.actors.num_actors, cfg.actors.num_cpus)
+    ctx = None if cfg.mode == "serial" else cluster.connect(cfg.mode, cfg.ray_address, cfg.actors.num_actors, cfg.actors.num_cpus,
+                                                             cfg.learner.replicas)
     stop.install()  # after ray.init, which installs handlers of its own
     host = cluster.bind_host(ctx, cfg.bind_host)
     if not cfg.actors.seq_ledger_dir and host == "127.0.0.1":
@@ -141,18 +146,22 @@ def _start(cfg: RunConfig) -> Run:
 
 
 def _start_services(run: Run, host: str, resume_from) -> None:
-    """The sampler, then the actors (they ask it for draws at once)."""
+    """The sampler, the other learner replicas, then the actors (they ask the sampler for draws at once)."""
     cfg, ctx, out, transport, learner = run.cfg, run.ctx, run.out, run.transport, run.learner
     sampler_cfg = dataclasses.replace(
         cfg.sampler,
         host=host if host == "127.0.0.1" or ctx is None else "auto",
         seed=cfg.sampler.seed + cfg.seed,
+        device=cfg.learner.device,
         port=cfg.port_base + 3 if cfg.port_base else cfg.sampler.port,
     )
     run.sampler = SamplerHandle.start(sampler_cfg, task_space(cfg.task), task_clips(cfg.task), ctx, keys=run.keys)
     if resume_from is not None and resume_from[1].get("sampler"):
         run.sampler.saved_state = checkpoint.from_checkpointable(resume_from[1]["sampler"])
         run.sampler.client.set_state(run.sampler.saved_state)
+    replicas = ReplicaGroup.start(cfg, ctx, learner, host)
+    if replicas is not None:
+        out.line(f"[morphmimic] {replicas.description}")
     endpoints = {**transport.endpoints, "sampler": run.sampler.endpoint}
     out.line(f"[morphmimic] run {run.run_dir} | mode {ctx.kind if ctx else 'serial'} | endpoints {endpoints}")
     transport.publish(learner.weights_msg())
@@ -204,6 +213,8 @@ def _close(run: Run) -> None:
             run.pool.stop()
     if run.sampler is not None:
         run.sampler.stop()
+    if run.learner.replicas is not None:
+        run.learner.replicas.stop()
     run.transport.close()
     run.out.close()
     cluster.shutdown(run.ctx)

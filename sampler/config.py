@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 from common.config_limits import Limit, above, at_least, between, check_limits, validated
 
@@ -52,6 +52,8 @@ class SamplerConfig:
     """Seed of the sampler's numpy generator and of Vm's initial weights."""
     plot_params: tuple[str, ...] = ()
     """The two parameters of the Vm map PNG; empty = the first two of the space."""
+    device: Literal["cpu", "cuda", "auto"] = "cpu"
+    """Device of the marginal value fit; the training process sets it to `--learner.device`."""
     host: str = "127.0.0.1"
     """Interface the ROUTER binds; "auto" (Ray actor only) = this node's IP for a cluster."""
     port: int = 0

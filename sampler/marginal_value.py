@@ -44,7 +44,8 @@ class MarginalValue:
     """
 
     def __init__(self, low: np.ndarray, high: np.ndarray, hidden: tuple[int, ...] = (64, 64),
-                 lr: float = 1e-3, vbar_rate: float = 1e-3, seed: int = 0, probe_points: int = 1024):
+                 lr: float = 1e-3, vbar_rate: float = 1e-3, seed: int = 0, probe_points: int = 1024,
+                 device: str | torch.device = "cpu"):
         self.low = np.asarray(low, dtype=np.float64)
         self.high = np.asarray(high, dtype=np.float64)
         if self.low.shape != self.high.shape or self.low.ndim != 1:
@@ -62,7 +63,8 @@ class MarginalValue:
                 layers += [nn.Linear(width, h), nn.ReLU()]
                 width = h
             layers.append(nn.Linear(width, 1))
-            self.net = nn.Sequential(*layers)
+            self.net = nn.Sequential(*layers).to(device)
+        self.device = torch.device(device)
         self.opt = torch.optim.Adam(self.net.parameters(), lr=lr)
         self.seed, self.probe_points = seed, probe_points
         self.probe = self._uniform_probe()
@@ -96,9 +98,9 @@ class MarginalValue:
 
     def __call__(self, params: np.ndarray) -> np.ndarray:
         """Vm at `[n, d]` parameters -> `[n]` float64, in value (return) units."""
-        x = torch.as_tensor(self.normalize(np.atleast_2d(params)), dtype=torch.float32)
+        x = torch.as_tensor(self.normalize(np.atleast_2d(params)), dtype=torch.float32, device=self.device)
         with torch.no_grad(), one_torch_thread():
-            y = self._forward(x).double().numpy()
+            y = self._forward(x).double().cpu().numpy()
         return self.mu + self.sigma * y
 
     def _restandardize(self, mu: float, sigma: float) -> None:
@@ -139,12 +141,12 @@ class MarginalValue:
         if not self.fitted:
             self.vbar = mean
             self.fitted = True
-        x_all = torch.as_tensor(self.normalize(params), dtype=torch.float32)
-        y_all = torch.as_tensor((values - self.mu) / self.sigma, dtype=torch.float32)
+        x_all = torch.as_tensor(self.normalize(params), dtype=torch.float32, device=self.device)
+        y_all = torch.as_tensor((values - self.mu) / self.sigma, dtype=torch.float32, device=self.device)
         loss = torch.zeros(())
         with one_torch_thread():
             for _ in range(steps):
-                idx = torch.as_tensor(rng.integers(0, m, size=minibatch))
+                idx = torch.as_tensor(rng.integers(0, m, size=minibatch), device=self.device)
                 pred = self._forward(x_all[idx])
                 loss = torch.mean((pred - y_all[idx]) ** 2)
                 self.opt.zero_grad(set_to_none=True)
@@ -181,11 +183,11 @@ class MarginalValue:
                 "fitted": self.fitted, "steps": self.steps, "pairs_seen": self.pairs_seen,
                 "last_loss": self.last_loss, "probe_std": self.probe_std,
                 "low": self.low.tolist(), "high": self.high.tolist()}
-        arrays = {f"net/{k}": v.detach().numpy().copy() for k, v in self.net.state_dict().items()}
+        arrays = {f"net/{k}": v.detach().cpu().numpy().copy() for k, v in self.net.state_dict().items()}
         arrays["probe"] = self.probe.copy()
         for i, st in self.opt.state_dict()["state"].items():
             for key, val in st.items():
-                arrays[f"adam/{i}/{key}"] = torch.as_tensor(val).detach().numpy().copy()
+                arrays[f"adam/{i}/{key}"] = torch.as_tensor(val).detach().cpu().numpy().copy()
         return meta, arrays
 
     def load_state(self, meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> bool:
@@ -235,5 +237,5 @@ class MarginalValue:
         first: nn.Linear = self.net[0]
         with torch.no_grad():
             w = first.weight.double()
-            first.bias.add_((w @ torch.as_tensor(b)).float())
-            first.weight.copy_((w * torch.as_tensor(a)).float())
+            first.bias.add_((w @ torch.as_tensor(b, device=w.device)).float())
+            first.weight.copy_((w * torch.as_tensor(a, device=w.device)).float())

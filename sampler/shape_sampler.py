@@ -23,6 +23,7 @@ from typing import Any, Sequence
 import numpy as np
 import torch
 
+from common import device as devices
 from common.params import ParamError, ParamSpace
 from sampler.balancer import MotionBalancer
 from sampler.config import SamplerConfig
@@ -41,7 +42,7 @@ class ShapeSampler:
         self.space = space
         self.rng = np.random.default_rng(config.seed)
         self.vm = MarginalValue(space.low_array, space.high_array, config.vm_hidden, config.vm_lr,
-                                config.vbar_rate, config.seed, config.probe_points)
+                                config.vbar_rate, config.seed, config.probe_points, devices.resolve(config.device))
         self.balancer = MotionBalancer(clips) if clips else None
         self._pending_params: list[np.ndarray] = []
         self._pending_values: list[np.ndarray] = []

@@ -10,6 +10,9 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "sampler": ("sampler.bench", "MCMC refill time vs a policy iteration, draw latency through the socket"),
     "soak": ("learner.bench.soak", "train while injecting faults; counts lost unrolls"),
     "curve": ("learner.bench.curve", "the unroll stream and a sampler round trip with CURVE vs plain sockets"),
+    "replicas": ("learner.bench.replicas", "one PPO update in one process vs shared by data-parallel replicas, same batch"),
+    "scaling": ("learner.bench.scaling", "fresh samples/s and learner share against rollout actors x learner replicas"),
+    "capacity": ("learner.bench.capacity", "per-sample costs by network width: simulation, inference, transport, PPO update, all-reduce"),
 }
 
 

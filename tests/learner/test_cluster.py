@@ -62,3 +62,36 @@ def test_cluster_mode_without_a_cluster_says_so(tmp_path, monkeypatch):
     monkeypatch.setattr(cluster, "find_running_cluster", lambda explicit="": None)
     with pytest.raises(RuntimeError, match="no running Ray cluster found"):
         cluster.connect("cluster", "", 1, 1.0)
+
+
+def test_two_data_parallel_learners_stay_equal_and_learn_reach(two_worker_cluster, tmp_path):
+    """`--learner.replicas 2` on the two-worker cluster: the training process and one replica
+    actor (on the head, by the `morphmimic_learner` resource) in a gloo group on 127.0.0.1.
+    Their parameters must agree to 1e-6 after every update checked, and the run must learn
+    `reach` on the serial learning test's budget and threshold (untrained: about 1-3)."""
+    from common.policy import GaussianPolicy
+    from learner.config import LearnerConfig
+    from learner.replicas import flat_parameters
+    from tests.learner.test_training import _mean_return
+
+    cluster = two_worker_cluster
+    cfg = dataclasses.replace(
+        PRESETS["reach"][1], name="dp", runs_dir=str(tmp_path), quiet=True, mode="cluster", ray_address=cluster.address,
+        total_env_steps=16 * 4096, checkpoint_every=100, learner=LearnerConfig(replicas=2, threads=1),
+        actors=dataclasses.replace(PRESETS["reach"][1].actors, num_actors=2),
+    )
+    gaps: list[float] = []
+
+    def compare_replicas(run, metrics) -> None:
+        if run.learner.iteration % 4 == 1:
+            mine = flat_parameters(run.learner)
+            gaps.extend(float(abs(other - mine).max()) for other in run.learner.replicas.parameters())
+
+    assert train(cfg, on_iteration=compare_replicas) == 0
+    assert len(gaps) >= 4 and max(gaps) <= 1e-6, gaps
+    assert "2 data-parallel learners on cpu (gloo, rendezvous tcp://127.0.0.1:" in (tmp_path / "dp" / "log.txt").read_text()
+    state = checkpoint.load_latest(tmp_path / "dp" / "ckpt")[1]
+    assert state["env_steps"] >= cfg.total_env_steps
+    trained = GaussianPolicy(12, 2, cfg.policy)
+    trained.load_state_dict(state["policy"])
+    assert _mean_return(trained, cfg) > 15.0
