@@ -38,6 +38,8 @@ def main() -> int:
     parser.add_argument("--learner-slots", type=int, default=1,
                         help="data-parallel learner replicas the head may host besides the training process")
     args = parser.parse_args()
+    if args.rollout_per_worker < 1 or args.cpus_per_worker < 1 or args.learner_slots < 0:
+        parser.error("--rollout-per-worker and --cpus-per-worker must be at least 1, --learner-slots at least 0")
     cluster = start(args.rollout_per_worker, args.cpus_per_worker, args.learner_slots)
     actors = 2 * args.rollout_per_worker
     print(f"two-worker test cluster up: head + 2 workers at {cluster.address}")

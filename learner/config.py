@@ -130,6 +130,9 @@ class RunConfig:
                 f"--ppo.minibatch {self.ppo.minibatch} exceeds --steps-per-iteration {self.steps_per_iteration}"
             )
         self.task.substeps  # noqa: B018 - validates sim_hz / control_hz
+        if self.sampler.device not in ("cpu", self.learner.device):
+            raise ValueError(f"--sampler.device {self.sampler.device} is set from --learner.device ({self.learner.device}): "
+                             "give --learner.device instead")
         replicas = self.learner.replicas
         if replicas > 1 and self.mode == "serial":
             raise ValueError(f"--learner.replicas {replicas} needs Ray: give --mode auto, local or cluster, not serial")

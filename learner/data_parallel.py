@@ -17,6 +17,8 @@ from __future__ import annotations
 import datetime
 import os
 import socket
+import uuid
+from pathlib import Path
 
 import torch
 import torch.distributed as dist
@@ -56,28 +58,52 @@ class GradientSync:
         return bool(flat[-1] >= 1.0), averaged
 
 
+    @torch.no_grad()
+    def check_equal(self, tensors: list[torch.Tensor]) -> None:
+        """Stop the run if the replicas' copies have drifted apart. They take the same steps, but
+        each computes the pre-epoch passes (GAE values, PopArt and normalizer statistics) on its
+        own copy: a node that computes differently (another CPU or GPU model, another thread
+        count) would drift without this. One all-gather of a checksum per update."""
+        mine = torch.stack([torch.stack([t.double().sum(), t.double().square().sum()]) for t in tensors]).sum(0)
+        everyone = [torch.empty_like(mine) for _ in range(self.world)]
+        dist.all_gather(everyone, mine)
+        spread = (torch.stack(everyone) - mine).abs().max()
+        if spread > 1e-9 * (1.0 + mine.abs().max()):
+            raise RuntimeError(f"learner replicas diverged: parameter checksums {[x.tolist() for x in everyone]} "
+                               f"(rank {self.rank}); their nodes compute differently: resume with --learner.replicas 1 "
+                               "or on identical nodes")
+
+
 def backend(device: torch.device) -> str:
     """nccl between GPUs, gloo between CPU processes."""
     return "nccl" if device.type == "cuda" else "gloo"
 
 
-def free_port(host: str) -> int:
-    """A TCP port free on `host` now (the rendezvous port of the process group)."""
+def rendezvous(host: str, directory: str | Path) -> str:
+    """Where the group meets. On one machine (`host` 127.0.0.1) a file in `directory` (a FileStore:
+    no socket at all); across machines a free TCP port on `host`, which the store listens on with
+    every interface (torch's TCPStore binds no single address): firewall it, like Ray's own ports."""
+    if host == "127.0.0.1":
+        Path(directory).mkdir(parents=True, exist_ok=True)
+        return f"file://{Path(directory).resolve()}/rendezvous-{uuid.uuid4().hex}"
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind((host, 0))
-        return int(s.getsockname()[1])
+        return f"tcp://{host}:{s.getsockname()[1]}"
 
 
-def loopback_env(host: str) -> dict[str, str]:
-    """Environment that keeps gloo's own connections on loopback when the group's rendezvous is
-    127.0.0.1 (gloo otherwise binds the interface of this machine's hostname)."""
-    return {"GLOO_SOCKET_IFNAME": "lo"} if host == "127.0.0.1" else {}
+def on_one_machine(init_method: str) -> bool:
+    return init_method.startswith("file://") or init_method.startswith("tcp://127.0.0.1:")
+
+
+LOOPBACK_ENV = {"GLOO_SOCKET_IFNAME": "lo"}
+"""Keeps gloo's own connections between the replicas on loopback (it otherwise binds the
+interface of this machine's hostname)."""
 
 
 def join(init_method: str, rank: int, world: int, device: torch.device, timeout_s: float) -> None:
     """Join the data-parallel process group (blocks until all `world` replicas have joined)."""
-    host = init_method.removeprefix("tcp://").rpartition(":")[0]
-    os.environ.update(loopback_env(host))
+    if on_one_machine(init_method):
+        os.environ.update(LOOPBACK_ENV)
     dist.init_process_group(backend(device), init_method=init_method, rank=rank, world_size=world,
                             timeout=datetime.timedelta(seconds=timeout_s))
 

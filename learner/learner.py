@@ -88,12 +88,20 @@ class Learner:
         variance controller first): what every data-parallel replica runs on the same batch."""
         self.ppo.set_progress(env_steps / self.cfg.total_env_steps)
         anneal_log_std(self.policy, self.cfg.policy, env_steps)
-        return self.ppo.update(batch.to(self.device), self.generator, self.sync)
+        metrics = self.ppo.update(batch.to(self.device), self.generator, self.sync)
+        if self.sync is not None:
+            self.sync.check_equal([*self.policy.state_dict().values(), *self.value.state_dict().values()])
+        return metrics
 
     def update(self, unrolls: list[wire.UnrollMsg]) -> dict[str, float]:
         batch = self.batch_from(unrolls)
         others = self.replicas.start_update(batch, self.env_steps) if self.replicas is not None else None
-        metrics = self.apply_update(batch, self.env_steps)
+        try:
+            metrics = self.apply_update(batch, self.env_steps)
+        except Exception:
+            if others is not None:  # a replica that failed first is the cause: raise its error instead
+                self.replicas.finish_update(others, timeout_s=5.0)
+            raise
         if others is not None:
             self.replicas.finish_update(others)
         steps = int(batch.rewards.numel())

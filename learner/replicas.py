@@ -4,18 +4,23 @@ The training process is rank 0: it still receives every unroll, publishes the we
 the sampler and writes the checkpoints. Ranks 1..N-1 are Ray actors (`LearnerReplica`), placed by
 the `morphmimic_learner` resource where a node advertises it, and given one GPU each when the
 learner runs on cuda. At start each receives rank 0's whole learner state (networks, optimizer,
-minibatch generator) and joins a torch.distributed group (gloo on CPU, nccl on GPU) whose
-rendezvous is rank 0's host. Every iteration rank 0 puts the batch into Ray's object store once,
+minibatch generator) and joins a torch.distributed group (gloo on CPU, nccl on GPU) that meets
+at a file in the run directory when every node is on this machine, else at a TCP port on rank
+0's host (`learner.data_parallel.rendezvous`). Every iteration rank 0 puts the batch into Ray's object store once,
 every replica runs `Learner.apply_update` on it, and `learner.data_parallel.GradientSync` keeps
 their steps equal. What goes between them per minibatch step is one all-reduce of the gradients.
 
-A replica that dies makes the next all-reduce fail after `--learner.sync-timeout-s`; the run then
-writes a checkpoint and exits, to be resumed (`--resume auto`).
+A replica that dies makes the next all-reduce fail after `--learner.sync-timeout-s` (gloo); the
+run then writes a checkpoint and exits, to be resumed (`--resume auto`). A checksum compared
+after every update stops the run if the copies drift apart.
 """
 
 from __future__ import annotations
 
 import logging
+import threading
+import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -60,6 +65,35 @@ class LearnerReplica:
         data_parallel.leave()
 
 
+def _join_watching_replicas(init_method: str, world: int, learner: Learner, joined: list, timeout_s: float) -> None:
+    """Join the group as rank 0 while watching the replicas' own join calls, so that a replica
+    that fails to start (its constructor raised, no node can host it) is reported at once with
+    its own error, not as a rendezvous timeout `timeout_s` later."""
+    import ray
+
+    failure: list[BaseException] = []
+
+    def join() -> None:
+        try:
+            data_parallel.join(init_method, 0, world, learner.device, timeout_s)
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller's thread
+            failure.append(exc)
+
+    thread = threading.Thread(target=join, name="rank0-join", daemon=True)
+    thread.start()
+    deadline = time.monotonic() + timeout_s
+    while thread.is_alive():
+        ready, _ = ray.wait(joined, num_returns=len(joined), timeout=0.5)
+        for ref in ready:
+            ray.get(ref)  # raises the replica's error
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"learner replicas did not join within --learner.sync-timeout-s {timeout_s:g} s; "
+                               f"is there a node with a free {cluster.LEARNER_RESOURCE} unit (and a GPU with cuda)?")
+    if failure:
+        raise failure[0]
+    ray.get(joined, timeout=timeout_s)
+
+
 class ReplicaGroup:
     """Rank 0's handle on the other replicas: starts them, runs their share of each update, stops them."""
 
@@ -68,28 +102,27 @@ class ReplicaGroup:
         self.description = ""
 
     @classmethod
-    def start(cls, cfg: RunConfig, ctx: cluster.RayContext | None, learner: Learner, host: str) -> ReplicaGroup | None:
+    def start(cls, cfg: RunConfig, ctx: cluster.RayContext | None, learner: Learner, host: str,
+              run_dir: Path) -> ReplicaGroup | None:
         """Start replicas 1..N-1 and form the group with this process as rank 0 (None for one replica)."""
         world = cfg.learner.replicas
         if world == 1:
             return None
         import ray
 
-        init_method = f"tcp://{host}:{data_parallel.free_port(host)}"
+        init_method = data_parallel.rendezvous(host, run_dir)
         options = cluster.actor_options(ctx, cluster.LEARNER_RESOURCE, 1.0, 0.0) if ctx is not None else {}
         if learner.device.type == "cuda":
             options["num_gpus"] = 1
-        env = data_parallel.loopback_env(host)
-        if env:
-            options["runtime_env"] = {"env_vars": env}
+        if data_parallel.on_one_machine(init_method):
+            options["runtime_env"] = {"env_vars": data_parallel.LOOPBACK_ENV}
         state = ray.put(learner.state_dict())
         remote = ray.remote(LearnerReplica).options(max_restarts=0, **options)
         handles = [remote.remote(cfg.to_json(), rank, world, init_method, state) for rank in range(1, world)]
         joined = [h.join.remote() for h in handles]
         group = cls(handles, learner)
         try:
-            data_parallel.join(init_method, 0, world, learner.device, cfg.learner.sync_timeout_s)
-            ray.get(joined, timeout=cfg.learner.sync_timeout_s)
+            _join_watching_replicas(init_method, world, learner, joined, cfg.learner.sync_timeout_s)
         except BaseException:
             group.stop()
             raise
@@ -105,11 +138,11 @@ class ReplicaGroup:
         ref = ray.put(batch)
         return [h.update.remote(ref, env_steps) for h in self.handles]
 
-    def finish_update(self, pending: list) -> None:
-        """Wait for the replicas' share of the update (their errors are raised here)."""
+    def finish_update(self, pending: list, timeout_s: float | None = None) -> None:
+        """Wait for the replicas' share of the update; a replica's error is raised here."""
         import ray
 
-        ray.get(pending, timeout=self.learner.cfg.learner.sync_timeout_s)
+        ray.get(pending, timeout=self.learner.cfg.learner.sync_timeout_s if timeout_s is None else timeout_s)
 
     def parameters(self) -> list[np.ndarray]:
         """Each replica's parameters, rank 1 first (for tests and checks)."""

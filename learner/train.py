@@ -159,7 +159,7 @@ def _start_services(run: Run, host: str, resume_from) -> None:
     if resume_from is not None and resume_from[1].get("sampler"):
         run.sampler.saved_state = checkpoint.from_checkpointable(resume_from[1]["sampler"])
         run.sampler.client.set_state(run.sampler.saved_state)
-    replicas = ReplicaGroup.start(cfg, ctx, learner, host)
+    replicas = ReplicaGroup.start(cfg, ctx, learner, host, run.run_dir)
     if replicas is not None:
         out.line(f"[morphmimic] {replicas.description}")
     endpoints = {**transport.endpoints, "sampler": run.sampler.endpoint}

@@ -54,6 +54,7 @@ import dataclasses
 import json
 import math
 import multiprocessing as mp
+import tempfile
 import os
 import statistics
 import time
@@ -275,7 +276,7 @@ def allreduce_us(sizes: list[int], calls: int = ALLREDUCE_CALLS) -> list[float]:
     """Median microseconds per all-reduce of a float32 tensor of each size between two processes on 127.0.0.1."""
     spawn = mp.get_context("spawn")
     out = spawn.Queue()
-    init_method = f"tcp://127.0.0.1:{data_parallel.free_port('127.0.0.1')}"
+    init_method = data_parallel.rendezvous("127.0.0.1", tempfile.gettempdir())
     procs = [spawn.Process(target=_allreduce_rank, args=(init_method, r, sizes, calls, out)) for r in range(2)]
     for p in procs:
         p.start()
@@ -391,6 +392,8 @@ def main(argv: list[str]) -> int:
                         help="no further timed update of a width once its timed updates took this long")
     parser.add_argument("--out", default="", help="directory for capacity.json and capacity.md")
     args = parser.parse_args(argv)
+    if args.update_budget_s <= 0 or args.repeats < 1:
+        parser.error("--update-budget-s must be above 0 and --repeats at least 1")
     presets = [p.strip() for p in args.presets.split(",") if p.strip()]
     unknown = [p for p in presets if p not in PRESETS]
     if unknown or not presets:

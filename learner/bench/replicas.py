@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import multiprocessing as mp
+import tempfile
 import time
 
 import numpy as np
@@ -74,7 +75,7 @@ def replicated(preset: str, width: int, updates: int, world: int) -> tuple[float
     """(seconds per update of rank 0, rank 0's parameters) with `world` replicas."""
     ctx = mp.get_context("spawn")
     out = ctx.Queue()
-    init_method = f"tcp://127.0.0.1:{data_parallel.free_port('127.0.0.1')}"
+    init_method = data_parallel.rendezvous("127.0.0.1", tempfile.gettempdir())
     procs = [ctx.Process(target=_replica, args=(r, world, init_method, preset, width, updates, out)) for r in range(world)]
     for p in procs:
         p.start()

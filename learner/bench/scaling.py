@@ -117,6 +117,8 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--address", default="", help="a running Ray cluster to measure instead of the local test cluster")
     parser.add_argument("--out", default="", help="directory for scaling.json, scaling.md and scaling.png")
     args = parser.parse_args(argv)
+    if args.warmup < 0:
+        parser.error(f"--warmup {args.warmup}: give 0 or more iterations")
     if args.iterations <= args.warmup + 1:
         parser.error(f"--iterations {args.iterations} must exceed --warmup {args.warmup} by at least 2")
     if args.envs_per_actor < 1 or args.learner_threads < 1:

@@ -89,7 +89,8 @@ def test_two_data_parallel_learners_stay_equal_and_learn_reach(two_worker_cluste
 
     assert train(cfg, on_iteration=compare_replicas) == 0
     assert len(gaps) >= 4 and max(gaps) <= 1e-6, gaps
-    assert "2 data-parallel learners on cpu (gloo, rendezvous tcp://127.0.0.1:" in (tmp_path / "dp" / "log.txt").read_text()
+    assert f"2 data-parallel learners on cpu (gloo, rendezvous file://{tmp_path.resolve()}/dp/rendezvous-" in (
+        tmp_path / "dp" / "log.txt").read_text()
     state = checkpoint.load_latest(tmp_path / "dp" / "ckpt")[1]
     assert state["env_steps"] >= cfg.total_env_steps
     trained = GaussianPolicy(12, 2, cfg.policy)

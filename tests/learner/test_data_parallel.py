@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import multiprocessing as mp
+import tempfile
 
 import numpy as np
 import pytest
@@ -55,7 +56,7 @@ def _replica(rank: int, world: int, init_method: str, case: str, poison_rank: in
 def _run_group(case: str, world: int = 2, poison_rank: int = -1) -> dict[int, tuple]:
     ctx = mp.get_context("spawn")
     out = ctx.Queue()
-    init_method = f"tcp://127.0.0.1:{data_parallel.free_port('127.0.0.1')}"
+    init_method = data_parallel.rendezvous("127.0.0.1", tempfile.gettempdir())
     procs = [ctx.Process(target=_replica, args=(r, world, init_method, case, poison_rank, out)) for r in range(world)]
     for p in procs:
         p.start()
@@ -111,3 +112,34 @@ def test_the_config_refuses_replicas_it_cannot_split_a_minibatch_among():
         dataclasses.replace(RunConfig(mode="local"), learner=dataclasses.replace(RunConfig().learner, replicas=3))
     with pytest.raises(ValueError, match="needs Ray"):
         dataclasses.replace(RunConfig(mode="serial"), learner=dataclasses.replace(RunConfig().learner, replicas=2))
+
+
+def _drifting_replica(rank: int, init_method: str, out) -> None:
+    torch.set_num_threads(1)
+    ppo, _ = _ppo(CASES["plain"])
+    if rank == 1:  # as a node that computes differently would leave it
+        with torch.no_grad():
+            next(ppo.value.parameters()).add_(1e-3)
+    data_parallel.join(init_method, rank, 2, torch.device("cpu"), timeout_s=60)
+    try:
+        tensors = [*ppo.policy.state_dict().values(), *ppo.value.state_dict().values()]
+        try:
+            data_parallel.GradientSync(rank, 2).check_equal(tensors)
+            out.put((rank, "equal"))
+        except RuntimeError as exc:
+            out.put((rank, str(exc)))
+    finally:
+        data_parallel.leave()
+
+
+def test_replicas_whose_copies_drifted_apart_stop_on_both_sides(tmp_path):
+    ctx = mp.get_context("spawn")
+    out = ctx.Queue()
+    init_method = data_parallel.rendezvous("127.0.0.1", tmp_path)
+    procs = [ctx.Process(target=_drifting_replica, args=(r, init_method, out)) for r in range(2)]
+    for p in procs:
+        p.start()
+    results = dict(out.get(timeout=120) for _ in range(2))
+    for p in procs:
+        p.join(timeout=30)
+    assert all("learner replicas diverged" in results[r] for r in range(2)), results
