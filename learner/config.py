@@ -49,6 +49,8 @@ class LearnerConfig:
     def validate(self) -> None:
         """ValueError naming the first value outside what is allowed."""
         check_limits(self)
+        if self.device not in ("cpu", "cuda", "auto"):
+            raise ValueError(f"--learner.device = {self.device!r}: give cpu, cuda or auto")
 
 
 @dataclass(frozen=True)

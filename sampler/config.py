@@ -74,6 +74,8 @@ class SamplerConfig:
         check_limits(self)
         if not self.vm_hidden:
             raise ValueError(f"--sampler.vm-hidden = {self.vm_hidden!r}: give one or more layer sizes")
+        if self.device not in ("cpu", "cuda", "auto"):
+            raise ValueError(f"--sampler.device = {self.device!r}: give cpu, cuda or auto")
 
     @property
     def mh_steps(self) -> int:

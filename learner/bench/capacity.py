@@ -71,10 +71,10 @@ from common import wire
 from common.policy import GaussianPolicy, ValueNet
 from common.tasks.registry import make_env
 from learner import data_parallel
-from learner.bench.args import positive_ints
 from learner.bench.learner_update import random_batch
 from learner.config import RunConfig
 from learner.ppo import PPO, Batch
+from learner.evaluation.cli_args import positive_float, positive_int, positive_ints
 from learner.presets import PRESETS
 
 SERVER_BATCHES = (64, 256, 1024)
@@ -387,19 +387,15 @@ def main(argv: list[str]) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--presets", default="executor,lower_biped", help="comma-separated training presets")
     parser.add_argument("--widths", type=positive_ints, default=[128, 256, 512, 1024], help="hidden widths of the 3-layer nets")
-    parser.add_argument("--repeats", type=int, default=5, help="timed blocks (updates: at most) per measurement")
-    parser.add_argument("--update-budget-s", type=float, default=8.0,
+    parser.add_argument("--repeats", type=positive_int, default=5, help="timed blocks (updates: at most) per measurement")
+    parser.add_argument("--update-budget-s", type=positive_float, default=8.0,
                         help="no further timed update of a width once its timed updates took this long")
     parser.add_argument("--out", default="", help="directory for capacity.json and capacity.md")
     args = parser.parse_args(argv)
-    if args.update_budget_s <= 0 or args.repeats < 1:
-        parser.error("--update-budget-s must be above 0 and --repeats at least 1")
     presets = [p.strip() for p in args.presets.split(",") if p.strip()]
     unknown = [p for p in presets if p not in PRESETS]
     if unknown or not presets:
         parser.error(f"--presets {args.presets!r}: unknown {unknown}; presets: {', '.join(PRESETS)}")
-    if args.repeats < 1:
-        parser.error("--repeats must be at least 1")
     torch.set_num_threads(1)
     load = os.getloadavg()
     print(f"{os.cpu_count()} cores, torch {torch.__version__} on 1 thread, load average {load[0]:.1f} "

@@ -28,9 +28,9 @@ import torch
 from common.policy import GaussianPolicy, PolicyConfig, ValueNet
 from common.tasks.registry import make_env
 from learner import data_parallel
-from learner.bench.args import positive_ints
 from learner.bench.learner_update import random_batch
 from learner.ppo import PPO, Batch
+from learner.evaluation.cli_args import positive_float, positive_int, positive_ints
 from learner.presets import PRESETS
 
 
@@ -102,11 +102,11 @@ def main(argv: list[str]) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--preset", default="executor", choices=sorted(PRESETS), help="preset whose task and PPO settings are used")
     parser.add_argument("--widths", type=positive_ints, default=[256, 1024], help="hidden widths of the 3-layer nets")
-    parser.add_argument("--replicas", type=int, default=2, help="data-parallel processes")
-    parser.add_argument("--updates", type=int, default=2, help="timed updates of each")
+    parser.add_argument("--replicas", type=positive_int, default=2, help="data-parallel processes")
+    parser.add_argument("--updates", type=positive_int, default=2, help="timed updates of each")
     args = parser.parse_args(argv)
-    if args.replicas < 2 or args.updates < 1:
-        parser.error("--replicas must be at least 2 and --updates at least 1")
+    if args.replicas < 2:
+        parser.error(f"--replicas {args.replicas}: give 2 or more (one process is the other arm)")
     if PRESETS[args.preset][1].ppo.minibatch % args.replicas:
         parser.error(f"--replicas {args.replicas}: the preset's minibatch {PRESETS[args.preset][1].ppo.minibatch} does not divide among them")
     torch.set_num_threads(1)

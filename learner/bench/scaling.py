@@ -28,9 +28,9 @@ import os
 import tempfile
 from pathlib import Path
 
-from learner.bench.args import positive_ints
 from learner.bench.throughput import end_to_end
 from learner.config import LearnerConfig, RunConfig
+from learner.evaluation.cli_args import positive_float, positive_int, positive_ints
 from learner.presets import PRESETS
 
 
@@ -110,10 +110,10 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--preset", default="reach", choices=sorted(PRESETS), help="training preset to run")
     parser.add_argument("--actors", type=positive_ints, default=[1, 2, 4, 8], help="rollout actor counts (default 1,2,4,8)")
     parser.add_argument("--replicas", type=positive_ints, default=[1, 2], help="learner replica counts (default 1,2)")
-    parser.add_argument("--envs-per-actor", type=int, default=8)
-    parser.add_argument("--iterations", type=int, default=8, help="PPO iterations per run: the fixed step budget")
+    parser.add_argument("--envs-per-actor", type=positive_int, default=8)
+    parser.add_argument("--iterations", type=positive_int, default=8, help="PPO iterations per run: the fixed step budget")
     parser.add_argument("--warmup", type=int, default=3, help="iterations excluded from the timing")
-    parser.add_argument("--learner-threads", type=int, default=1, help="torch threads of each learner process")
+    parser.add_argument("--learner-threads", type=positive_int, default=1, help="torch threads of each learner process")
     parser.add_argument("--address", default="", help="a running Ray cluster to measure instead of the local test cluster")
     parser.add_argument("--out", default="", help="directory for scaling.json, scaling.md and scaling.png")
     args = parser.parse_args(argv)
@@ -121,8 +121,6 @@ def main(argv: list[str]) -> int:
         parser.error(f"--warmup {args.warmup}: give 0 or more iterations")
     if args.iterations <= args.warmup + 1:
         parser.error(f"--iterations {args.iterations} must exceed --warmup {args.warmup} by at least 2")
-    if args.envs_per_actor < 1 or args.learner_threads < 1:
-        parser.error("--envs-per-actor and --learner-threads must be at least 1")
     base = PRESETS[args.preset][1]
     for r in args.replicas:
         if base.ppo.minibatch % r:

@@ -1,5 +1,5 @@
 """argparse `type=` converters of the evaluation commands (evaluate, ablation, robustness,
-learning_curve, morph_demo): each turns bad input into a usage error that names the value and what is allowed,
+learning_curve, morph_demo) and the benchmarks: each turns bad input into a usage error that names the value and what is allowed,
 before any checkpoint is loaded or any episode run."""
 
 from __future__ import annotations
@@ -28,6 +28,14 @@ def positive_int(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"{text!r} must be an integer >= 1")
     return value
+
+
+def positive_ints(text: str) -> list[int]:
+    """Comma-separated integers >= 1 (`--widths 128,256`, `--actors 1,2,4,8`)."""
+    parts = [x.strip() for x in text.split(",") if x.strip()]
+    if not parts:
+        raise argparse.ArgumentTypeError(f"{text!r}: give comma-separated integers >= 1, e.g. 1,2,4,8")
+    return [positive_int(x) for x in parts]
 
 
 def seed(text: str) -> int:

@@ -80,3 +80,15 @@ def test_the_marginal_value_fit_on_the_device_matches_the_cpu_fit(device):
         assert vm.state()[1]["net/0.weight"].dtype == np.float32
     assert np.abs(fits[device] - values).mean() < 1.0
     np.testing.assert_allclose(fits[device], fits["cpu"], atol=1e-3)
+
+
+def test_a_saved_config_with_a_device_of_another_kind_is_refused_naming_it():
+    import json
+
+    from learner.config import RunConfig
+
+    raw = json.loads(RunConfig().to_json())
+    for section, value, flag in (("learner", 3, "--learner.device"), ("sampler", "gpu", "--sampler.device")):
+        bad = {**raw, section: {**raw[section], "device": value}}
+        with pytest.raises(ValueError, match=f"{flag} = {value!r}: give cpu, cuda or auto"):
+            RunConfig.from_json(json.dumps(bad))
