@@ -9,7 +9,14 @@ reconstruction, every amplitude and frequency a keyword argument:
 - fish tail beat: a travelling wave of yaw along the body, amplitude growing toward the tail
   (carangiform swimming), root moving forward at `speed_m_s`;
 - manta wing flap: flap hinges on both wings with a phase lag toward the tips (a travelling
-  wave outwards) and a quarter-cycle twist, root moving forward.
+  wave outwards) and a twist a quarter cycle behind the flap, root moving forward.
+A swimmer's root speed is not free: it is what the stroke's thrust in MuJoCo's fluid gives the
+base body. Each `speed_m_s` default is that speed, measured with the base character's PD
+tracking the stroke (zero action) from 5 to 20 s, so the reference does not ask the body to
+outswim its own stroke (`tests/common/motion/test_procedural.py` holds it within 20%). Before
+this, the clips asked for 0.5 and 0.4 m/s while the strokes gave 0.07 m/s (fish) and -0.20 m/s
+(manta: its twist had the sign that swims backwards); a swimmer more than a body length
+behind its reference counts as fallen, so every episode ended within seconds.
 One clip is one cycle and loops (the root displacement accumulates, see kinematics.py).
 Joint names, types and hinge axes are read from the character's own model, so the clip
 drives exactly its joints (`qpos_map.py` matches by name).
@@ -92,8 +99,8 @@ def quadruped_trot(character, *, freq_hz: float = 1.5, hip_amp_rad: float = 0.3,
     return _clip("quadruped_trot", character, 1.0 / (t[1] - t[0]), t, root, angles, balls, "root/locomotion/trot/forward")
 
 
-def fish_swim(character, *, freq_hz: float = 2.0, tail_amp_rad: float = 0.45, wave_lag_rad: float = 0.9,
-              speed_m_s: float = 0.5, fps: float = 60.0) -> Clip:
+def fish_swim(character, *, freq_hz: float = 2.0, tail_amp_rad: float = 0.7, wave_lag_rad: float = 0.9,
+              speed_m_s: float = 0.17, fps: float = 60.0) -> Clip:
     """Tail beat: yaw_i = A (i/n)^1.5 sin(w t - i lag) on segment i of n (see module docstring)."""
     t = _cycle(freq_hz, fps)
     w = 2.0 * np.pi * freq_hz
@@ -105,9 +112,10 @@ def fish_swim(character, *, freq_hz: float = 2.0, tail_amp_rad: float = 0.45, wa
     return _clip("fish_swim", character, 1.0 / (t[1] - t[0]), t, root, angles, {}, "root/locomotion/swim/tail_beat")
 
 
-def manta_flap(character, *, freq_hz: float = 1.0, flap_amp_rad: float = 0.25, span_lag_rad: float = 0.5,
-               twist_amp_rad: float = 0.15, speed_m_s: float = 0.4, fps: float = 60.0) -> Clip:
-    """Wing flap: flap_k = A sin(w t - k lag) on wing segment k, twist a quarter cycle ahead."""
+def manta_flap(character, *, freq_hz: float = 1.0, flap_amp_rad: float = 0.4, span_lag_rad: float = 0.5,
+               twist_amp_rad: float = 0.3, speed_m_s: float = 0.28, fps: float = 60.0) -> Clip:
+    """Wing flap: flap_k = A sin(w t - k lag) on wing segment k, twist -B cos(w t - k lag): a
+    quarter cycle behind the flap (the opposite sign drives the manta backwards)."""
     t = _cycle(freq_hz, fps)
     w = 2.0 * np.pi * freq_hz
     angles = {}
@@ -118,7 +126,7 @@ def manta_flap(character, *, freq_hz: float = 1.0, flap_amp_rad: float = 0.25, s
             if name.endswith("_flap"):
                 angles[name] = flap_amp_rad * np.sin(phase)
             elif name.endswith("_twist"):
-                angles[name] = twist_amp_rad * np.cos(phase)
+                angles[name] = -twist_amp_rad * np.cos(phase)
     root = np.tile(character.standing_qpos[:3], (len(t), 1))
     root[:, 0] += speed_m_s * t
     return _clip("manta_flap", character, 1.0 / (t[1] - t[0]), t, root, angles, {}, "root/locomotion/swim/wing_flap")

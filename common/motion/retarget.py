@@ -35,7 +35,8 @@ from common.motion.clip import Clip
 from common.motion.leg_solve import Leg, lift_foot
 from common.motion.qpos_map import QposMap
 from common.motion.reference import CharacterMotion
-from common.motion.root_height import ROOT_HEIGHT_RULES, foot_geom_ids, foot_goals, foot_heights, lowest_z, root_offsets
+from common.motion.root_height import (ROOT_HEIGHT_RULES, foot_geom_ids, foot_goals, foot_heights, frame_distances,
+                                       lowest_points, lowest_z, root_offsets)
 
 
 @dataclass(frozen=True)
@@ -54,6 +55,15 @@ class RetargetConfig:
     """Weight (m/rad) of keeping the foot's orientation against reaching its height."""
     ik_damping: float = 1e-3
     """Levenberg damping of the leg solve (m^2)."""
+    root_speed_m_s: float = 0.5
+    """"contact_smooth" only: the fastest the root height may change (m/s) where the contact set
+    switches (`root_height.lower_envelope`)."""
+    ramp_s: float = 0.1
+    """`body_clearance_m`: seconds over which the root rises before, and settles after, a lift."""
+    body_clearance_m: float = 0.0
+    """Lift the root where the reference brings a body other than the feet (and what hangs
+    below them) closer to the floor than this, ramped over `ramp_s` on each side
+    (`clearance_lift`); 0: off. A foot floats by the lift on those frames."""
     root_height: str = "contact_set"
     """How the per-frame root offset is chosen (`root_offsets`): "contact_set" puts the highest
     foot of each frame's contact set on the floor; "foot_tracks" the highest of every foot's
@@ -98,7 +108,7 @@ def retarget_qpos(clip: Clip, model: mujoco.MjModel, foot_geoms: tuple[str, ...]
     qpos[:, :2] = xy0 + leg_ratio * (qpos[:, :2] - xy0)
     qpos[:, 2] = leg_ratio * (qpos[:, 2] - contacts.ground_m)
     h, _ = foot_heights(model, qpos, foot_geoms)
-    dz = root_offsets(h, contacts.flags, cfg.root_height, clip.loop)
+    dz = root_offsets(h, contacts.flags, cfg.root_height, clip.loop, max_step=cfg.root_speed_m_s / clip.fps)
     qpos[:, 2] += dz
     h = h + dz[:, None]
     data = mujoco.MjData(model)
@@ -128,7 +138,39 @@ def retarget_qpos(clip: Clip, model: mujoco.MjModel, foot_geoms: tuple[str, ...]
                 mujoco.mj_kinematics(model, data)
                 depth = goal[k, i] - lowest_z(model, data, geoms[i])
         qpos[k] = data.qpos
+    if cfg.body_clearance_m > 0:
+        qpos[:, 2] += clearance_lift(model, qpos, foot_geoms, cfg.body_clearance_m, cfg.ramp_s * clip.fps, clip.loop)
     return qpos
+
+
+def clearance_lift(model: mujoco.MjModel, qpos: np.ndarray, foot_geoms: tuple[str, ...], clearance_m: float,
+                   ramp_frames: float, loop: bool = False) -> np.ndarray:
+    """Per-frame root lift `[T]` (m) that keeps every geom of the bodies other than the feet
+    (and the bodies below them) at least `clearance_m` above the floor: each frame's deficit,
+    spread as a tent over `ramp_frames` frames on each side (the largest tent wins), so the
+    root rises and settles continuously. Under Won & Lee's fall rule (any floor contact but a
+    foot's) a reference whose shin reaches the floor asks for a fall; on the lower biped's
+    evaluation shapes that happens where thick shins sit on thin feet."""
+    n = len(qpos)
+    feet = set()
+    for f in foot_geoms:
+        ids = foot_geom_ids(model, f)
+        feet.update(int(model.geom_bodyid[g]) for g in ids)
+    geoms = np.array([g for g in range(model.ngeom) if model.geom_bodyid[g] > 0 and int(model.geom_bodyid[g]) not in feet],
+                     dtype=np.int64)
+    if len(geoms) == 0:
+        return np.zeros(n)
+    data = mujoco.MjData(model)
+    deficit = np.zeros(n)
+    for k in range(n):
+        data.qpos[:] = qpos[k]
+        mujoco.mj_kinematics(model, data)
+        low = lowest_points(model, geoms, data.geom_xpos[geoms][None], data.geom_xmat[geoms][None])[0].min()
+        deficit[k] = max(0.0, clearance_m - float(low))
+    if not deficit.any():
+        return deficit
+    ramp = np.clip(1.0 - frame_distances(n, loop) / max(ramp_frames, 1e-9), 0.0, 1.0)  # [frame, deficit frame]
+    return np.max(ramp * deficit[None, :], axis=1)
 
 
 def character_feet(character) -> tuple[str, ...]:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-ROOT_HEIGHT_RULES = ("contact_set", "foot_tracks")
+ROOT_HEIGHT_RULES = ("contact_set", "foot_tracks", "contact_smooth")
 
 
 def foot_geom_ids(model: mujoco.MjModel, foot_geom: str) -> np.ndarray:
@@ -79,7 +79,8 @@ def foot_heights(model: mujoco.MjModel, qpos_frames: np.ndarray, foot_geoms: tup
     return h, pos
 
 
-def root_offsets(h: np.ndarray, flags: np.ndarray, rule: str = "contact_set", loop: bool = False) -> np.ndarray:
+def root_offsets(h: np.ndarray, flags: np.ndarray, rule: str = "contact_set", loop: bool = False,
+                 max_step: float = 0.01) -> np.ndarray:
     """Per-frame vertical root offsets `[T]` (m) that put the feet on the floor, from each foot's
     lowest-point height `h [T, F]` (m, before the offset) and its contact flags `[T, F]` on the
     base character (Won & Lee 2019, METHOD.md A: after F, the feet touch the ground; this is the
@@ -89,7 +90,13 @@ def root_offsets(h: np.ndarray, flags: np.ndarray, rule: str = "contact_set", lo
     frames without contact. "foot_tracks": each foot's height on its contact frames,
     interpolated in time across its swing, gives a track per foot; the offset is minus the
     highest track. Both put every contact foot at or below the floor (the leg solve lifts the
-    rest); only "foot_tracks" is continuous when the contact set changes. `loop`: the clip's
+    rest); "contact_smooth": "contact_set" lowered where it must be so that it changes by at
+    most `max_step` m between two frames (`lower_envelope`): where the longer leg takes over,
+    the root rises at that rate after the switch instead of within a frame, and where the
+    shorter one does, it sinks at that rate before it, the leg solve bending the stance leg
+    meanwhile. It never lifts the root above "contact_set", so no stance foot floats.
+    "foot_tracks" and "contact_smooth" are continuous when the contact set changes,
+    "contact_set" is not. `loop`: the clip's
     last frame is its first again (`Clip.loop`), so a gap at the ends is bridged around the
     loop (period T - 1 frames); otherwise the first and last contact values are held.
     No contact anywhere: minus the 10th percentile of the lowest foot (the clip's floor)."""
@@ -101,6 +108,8 @@ def root_offsets(h: np.ndarray, flags: np.ndarray, rule: str = "contact_set", lo
         return -_bridge(in_contact, np.where(in_contact, highest, 0.0), loop)
     if rule == "foot_tracks":
         return -np.max(foot_tracks(h, flags, loop), axis=1)
+    if rule == "contact_smooth":
+        return lower_envelope(root_offsets(h, flags, "contact_set", loop), max_step, loop)
     raise ValueError(f"root height rule {rule!r} is not one of {' | '.join(ROOT_HEIGHT_RULES)}")
 
 
@@ -113,6 +122,25 @@ def foot_tracks(h: np.ndarray, flags: np.ndarray, loop: bool = False) -> np.ndar
         if flags[:, i].any():
             out[:, i] = _bridge(flags[:, i], h[:, i], loop)
     return out
+
+
+def lower_envelope(x: np.ndarray, max_step: float, loop: bool = False) -> np.ndarray:
+    """The largest `y <= x` `[T]` that changes by at most `max_step` between neighbouring frames:
+    y_t = min_j (x_j + max_step |t - j|), distances taken around the loop (period T - 1: the
+    last frame repeats the first) for a looping clip."""
+    x = np.asarray(x, dtype=np.float64)
+    return np.min(x[None, :] + max_step * frame_distances(len(x), loop), axis=1)
+
+
+def frame_distances(n: int, loop: bool = False) -> np.ndarray:
+    """`[n, n]` how many frames apart each two frames of a clip are; around the loop for a
+    looping clip (period n - 1 frames: its last frame repeats the first)."""
+    frames = np.arange(n)
+    d = np.abs(frames[:, None] - frames[None, :]).astype(np.float64)
+    period = n - 1 if loop and n > 2 else None
+    if period:
+        d = np.minimum(d % period, period - d % period)
+    return d
 
 
 def _bridge(where: np.ndarray, values: np.ndarray, loop: bool) -> np.ndarray:

@@ -96,7 +96,8 @@ class ImitateEnv:
         self.preset = character_preset(cfg)
         self.clip_id = cfg.imitate.clip_id or references.DEFAULT_CLIPS[self.preset]
         self.timestep_s = 1.0 / cfg.sim_hz
-        self.retarget = RetargetConfig(root_height=cfg.imitate.retarget_root_height)
+        self.retarget = RetargetConfig(root_height=cfg.imitate.retarget_root_height,
+                                       body_clearance_m=cfg.imitate.retarget_body_clearance_m)
         self.space = self.param_space(cfg)
         self.n_shape = len(self.space.names) - len(cfg.imitate.task_params)
         self.rng = np.random.default_rng(seed)

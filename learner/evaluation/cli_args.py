@@ -62,6 +62,14 @@ def positive_float(text: str) -> float:
     return value
 
 
+def clearance(text: str) -> float:
+    """A body clearance in metres, in [0, 0.1] (`--task.imitate.retarget-body-clearance-m`'s range)."""
+    value = _number(text, float, "a number of metres in [0, 0.1]")
+    if not 0.0 <= value <= 0.1:
+        raise argparse.ArgumentTypeError(f"{text!r} must be a number of metres in [0, 0.1]")
+    return value
+
+
 def port(text: str) -> int:
     """A TCP/UDP port: an integer in [0, 65535] (0: the system picks a free one)."""
     value = _number(text, int, "an integer in [0, 65535]")

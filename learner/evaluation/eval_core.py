@@ -21,12 +21,13 @@ from typing import Any, Callable
 import numpy as np
 import torch
 
-from common.motion.check import root_bob
+from common.motion.check import body_clearance, root_bob
 from common.policy import GaussianPolicy
 from common.tasks.base import TaskConfig
 from common.tasks.registry import make_env
 from learner import checkpoint
 from learner.config import RunConfig
+from learner.evaluation.swim_metrics import SwimTracker, summarize_swim
 
 
 @dataclass(frozen=True)
@@ -122,9 +123,11 @@ def extremeness(space, params: np.ndarray, n_shape: int | None = None) -> np.nda
 def run_episode(env, policy: GaussianPolicy, params: np.ndarray, seed: int,
                 on_step: Callable[[Any, int], None] | None = None) -> dict[str, Any]:
     """One deterministic (mean action) episode; `on_step(env, k)` is called after each step.
-    A walker's result also has its reference's root bob (`reference_root_bob`)."""
+    A walker's result also has its reference's root bob (`reference_root_bob`), a swimmer's its
+    speed, heading and upright figures (`swim_metrics.SwimTracker`)."""
     obs, _ = env.reset(seed, params)
     bob = reference_root_bob(env)
+    swim = SwimTracker() if getattr(getattr(env, "character", None), "is_swimmer", False) else None
     ret = task = imit = 0.0
     fell = diverged = fell_paper = False
     fall_bodies: list[str] = []
@@ -137,6 +140,8 @@ def run_episode(env, policy: GaussianPolicy, params: np.ndarray, seed: int,
         task += float(info.get("task_reward", 0.0))
         imit += float(info.get("imitation_reward", 0.0))
         fell_paper = fell_paper or bool(info.get("fell_paper_rule", False))
+        if swim is not None:
+            swim(env, k)
         if on_step is not None:
             on_step(env, k)
         if term or trunc:
@@ -146,40 +151,67 @@ def run_episode(env, policy: GaussianPolicy, params: np.ndarray, seed: int,
             break
     return {"return": ret, "task_reward": task, "imitation_reward": imit, "steps": k, "fell": fell,
             "diverged": diverged, "seconds": k / env.cfg.control_hz, "fall_bodies": fall_bodies,
-            "fell_paper_rule": fell_paper or fell or diverged, **bob}
+            "fell_paper_rule": fell_paper or fell or diverged, **bob, **(swim.result() if swim is not None else {})}
 
 
-def reference_root_bob(env) -> dict[str, float]:
-    """The retargeted reference's root-height range and largest step between frames (m) on the
-    env's current shape (`common.motion.check.root_bob`), for characters with feet; {} else."""
+def reference_root_bob(env) -> dict[str, Any]:
+    """The retargeted reference on the env's current shape, for characters with feet ({} else):
+    its root-height range and largest step between frames (m, `common.motion.check.root_bob`),
+    and how close it brings a body whose floor contact is a fall under the task's rule to the
+    floor (`ref_clearance_m`, `ref_clearance_body`; `common.motion.check.body_clearance`)."""
     motion, character = getattr(env, "motion", None), getattr(env, "character", None)
     if motion is None or not getattr(character, "foot_geoms", ()):
         return {}
     span, step = root_bob(motion.qpos_frames)
-    return {"ref_root_range_m": span, "ref_root_step_m": step}
+    out: dict[str, Any] = {"ref_root_range_m": span, "ref_root_step_m": step}
+    allowed = getattr(env, "allowed_contact", None)
+    if allowed is not None:
+        clearance, body = body_clearance(env.model, motion.qpos_frames, np.flatnonzero(~allowed))
+        if np.isfinite(clearance):
+            out.update(ref_clearance_m=clearance, ref_clearance_body=body)
+    return out
 
 
 ROOT_RANGE_BINS_M = (0.03, 0.06, 0.10)
 """Edges of the summary's fall-down table by the reference's root range (m)."""
+
+CLEARANCE_BINS_M = (0.005, 0.02)
+"""Edges (besides 0) of the summary's fall-down table by the reference's clearance of the bodies
+that may not touch the floor (m)."""
+
+
+def _falls_by(results: list[dict], field: str, edges: tuple[float, ...], key: str) -> list[dict[str, Any]]:
+    """Fall-down % per bin of `field` between `edges` (m, -inf and inf added at the ends), for
+    results that carry it; each row labels its bin in cm under `key`."""
+    rows = [r for r in results if field in r]
+    if not rows:
+        return []
+    x = np.array([r[field] for r in rows])
+    fell = np.array([r["fell"] or r["diverged"] for r in rows], dtype=bool)
+    bounds = (-np.inf, *edges, np.inf)
+    out = []
+    for lo, hi in zip(bounds[:-1], bounds[1:]):
+        inside = (x >= lo) & (x < hi)
+        if not np.isfinite(lo) and not inside.any():
+            continue  # the open lower bin only where something falls in it
+        label = (f"under {100 * hi:g} cm" if not np.isfinite(lo) else
+                 f"{100 * lo:g}-{100 * hi:g} cm" if np.isfinite(hi) else f"over {100 * lo:g} cm")
+        out.append({key: label, "shapes": int(inside.sum()),
+                    "fall_down_pct": float(100.0 * fell[inside].mean()) if inside.any() else None})
+    return out
 
 
 def falls_by_root_range(results: list[dict]) -> list[dict[str, Any]]:
     """Fall-down % per bin of the reference's root-height range (`ROOT_RANGE_BINS_M`), for
     results that carry it: where a retargeting moves the root where the clip does not, the
     shapes with the largest range fall most (the quadruped under "contact_set")."""
-    rows = [r for r in results if "ref_root_range_m" in r]
-    if not rows:
-        return []
-    span = np.array([r["ref_root_range_m"] for r in rows])
-    fell = np.array([r["fell"] or r["diverged"] for r in rows], dtype=bool)
-    edges = (0.0, *ROOT_RANGE_BINS_M, np.inf)
-    out = []
-    for lo, hi in zip(edges[:-1], edges[1:]):
-        inside = (span >= lo) & (span < hi)
-        label = f"{100 * lo:g}-{100 * hi:g} cm" if np.isfinite(hi) else f"over {100 * lo:g} cm"
-        out.append({"root_range": label, "shapes": int(inside.sum()),
-                    "fall_down_pct": float(100.0 * fell[inside].mean()) if inside.any() else None})
-    return out
+    return _falls_by(results, "ref_root_range_m", (0.0, *ROOT_RANGE_BINS_M), "root_range")
+
+
+def falls_by_clearance(results: list[dict]) -> list[dict[str, Any]]:
+    """Fall-down % per bin of how close the reference brings a body that may not touch the floor
+    to it (`ref_clearance_m`; under 0: the reference itself puts it into the floor)."""
+    return _falls_by(results, "ref_clearance_m", (0.0, *CLEARANCE_BINS_M), "clearance")
 
 
 _WORKER: dict[str, Any] = {}
@@ -258,6 +290,8 @@ def summarize(results: list[dict], space, n_shape: int) -> dict[str, Any]:
         "fall_down_pct_extreme10": float(100.0 * fell[top].mean()),
         "falls_by_body": dict(sorted(by_body.items(), key=lambda kv: (-kv[1], kv[0]))),
         "falls_by_ref_root_range": falls_by_root_range(results),
+        "falls_by_ref_clearance": falls_by_clearance(results),
+        **summarize_swim(results),
     }
 
 

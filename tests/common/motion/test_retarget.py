@@ -79,7 +79,7 @@ def test_foot_tracks_offset_is_continuous_where_the_contact_set_switches():
     # Both put every planted foot at or below the floor (the leg solve lifts the rest).
     for dz in (by_set, by_tracks):
         assert np.all((h + dz[:, None])[flags] <= 1e-12)
-    with pytest.raises(ValueError, match=re.escape("'stilts' is not one of contact_set | foot_tracks")):
+    with pytest.raises(ValueError, match=re.escape("'stilts' is not one of contact_set | foot_tracks | contact_smooth")):
         root_offsets(h, flags, "stilts")
     with pytest.raises(ValueError, match="root_height 'stilts'"):
         RetargetConfig(root_height="stilts")
@@ -127,6 +127,87 @@ def test_foot_tracks_trot_on_unequal_legs_keeps_its_root_and_feet():
     assert np.abs(np.diff(z["contact_set"])).max() > 0.03
     assert np.abs(np.diff(z["foot_tracks"])).max() < 0.01
     assert np.ptp(z["foot_tracks"]) < 0.03
+
+
+def test_contact_smooth_lowers_the_root_ahead_of_a_drop_and_rises_at_its_rate():
+    """A walk whose stance passes from foot 0 to foot 1 at frame 20 and back at frame 40 with
+    no double support (the MASS walk's contacts), foot 1's planted height 12 cm above foot 0's
+    (a shorter leg): "contact_set" moves the root by 12 cm within one frame at each switch;
+    "contact_smooth" at most 1 cm per frame, never above "contact_set" (no stance foot
+    floats), and equal to it away from the switches."""
+    n = 60
+    h = np.zeros((n, 2))
+    h[:, 1] = 0.12
+    flags = np.zeros((n, 2), dtype=bool)
+    flags[:20, 0] = True
+    flags[20:40, 1] = True
+    flags[40:, 0] = True
+    by_set = root_offsets(h, flags, "contact_set")
+    smooth = root_offsets(h, flags, "contact_smooth", max_step=0.01)
+    assert np.abs(np.diff(by_set)).max() == pytest.approx(0.12)
+    assert np.abs(np.diff(smooth)).max() <= 0.01 + 1e-12
+    assert np.all(smooth <= by_set + 1e-12)
+    assert np.all((h + smooth[:, None])[flags] <= 1e-12)  # every planted foot at or below the floor
+    np.testing.assert_allclose(smooth[:9], 0.0, atol=1e-12)  # until the drop's 11 frames of sinking
+    np.testing.assert_allclose(smooth[9:20], -0.01 * np.arange(1, 12), atol=1e-12)  # the long leg bends
+    np.testing.assert_allclose(smooth[20:40], -0.12, atol=1e-12)  # the short leg's stance
+    np.testing.assert_allclose(smooth[40:52], -0.12 + 0.01 * np.arange(1, 13), atol=1e-12)  # rises after
+    np.testing.assert_allclose(smooth[52:], 0.0, atol=1e-12)
+
+
+def test_lower_envelope_keeps_its_rate_around_the_loop():
+    from common.motion.root_height import lower_envelope
+
+    x = np.array([0.0, 0.0, -0.05, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # frame 9 repeats frame 0
+    y = lower_envelope(x, 0.02, loop=True)
+    np.testing.assert_allclose(y, [-0.01, -0.03, -0.05, -0.03, -0.01, 0.0, 0.0, 0.0, 0.0, -0.01])
+    wrap = np.array([-0.05, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -0.05])
+    np.testing.assert_allclose(lower_envelope(wrap, 0.02, loop=True)[[1, 8]], [-0.03, -0.03])
+    np.testing.assert_allclose(lower_envelope(wrap, 0.02, loop=False)[[1, 8]], [-0.03, -0.03])
+    np.testing.assert_allclose(lower_envelope(x, 1.0), x)  # a loose rate changes nothing
+
+
+def test_contact_smooth_and_the_clearance_lift_on_the_mass_walk():
+    """Two of `morphmimic evaluate`'s 300 lower-biped shapes. The third, whose legs differ in
+    length: "contact_set" lifts the root by 20 cm within a frame when the long leg takes over;
+    "contact_smooth" by at most its rate, and the stance feet stay on the floor. The 37th, a
+    short body with thick shins on thin feet: its retargeted walk puts a shin into the floor,
+    which the 1 cm clearance lift removes at the cost of a foot floating under 3 cm."""
+    import dataclasses
+
+    from common.motion.check import body_clearance
+    from common.tasks.registry import make_env, task_space
+    from learner.presets import PRESETS
+
+    task = PRESETS["lower_biped"][1].task
+    shapes = task_space(task).uniform(np.random.default_rng(2019), 37)
+
+    def motion(rule: str, clearance: float, shape: np.ndarray):
+        env = make_env(dataclasses.replace(task, imitate=dataclasses.replace(
+            task.imitate, retarget_root_height=rule, retarget_body_clearance_m=clearance)))
+        env.reset(0, shape)
+        return env, env.motion.qpos_frames
+
+    step = {}
+    for rule in ("contact_set", "contact_smooth"):
+        env, q = motion(rule, 0.0, shapes[2])
+        step[rule] = np.abs(np.diff(q[:, 2])).max()
+        h, _ = foot_heights(env.model, q, tuple(env.character.foot_geoms))
+        assert h.min() > -0.01, rule
+    from common.tasks import references
+
+    flags = references.task_clip("lower_biped", env.clip_id, env.timestep_s)[1].flags
+    assert np.abs(h[flags]).max() < 0.01  # contact_smooth: the stance feet on the floor
+    assert step["contact_set"] > 0.1
+    assert step["contact_smooth"] < 0.5 / 60 + 0.01  # its rate, plus the clip's own bob
+    for clearance, expect_below in ((0.0, True), (0.01, False)):
+        env, q = motion("contact_smooth", clearance, shapes[36])
+        low, body = body_clearance(env.model, q, np.flatnonzero(~env.allowed_contact))
+        assert (low < 0.0) == expect_below, (clearance, low, body)
+        if clearance:
+            assert low >= clearance - 1e-9
+            h, _ = foot_heights(env.model, q, tuple(env.character.foot_geoms))
+            assert np.abs(h[flags]).max() < 0.03
 
 
 def test_bend_side_bounds_narrow_only_two_sided_hinges_the_clip_bends_one_way():

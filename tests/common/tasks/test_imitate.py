@@ -146,7 +146,7 @@ def test_shape_box_scale_shrinks_the_box_toward_the_base_shape() -> None:
 
 
 def test_an_unknown_root_height_rule_is_refused_by_its_flag() -> None:
-    with pytest.raises(ValueError, match=re.escape("--task.imitate.retarget-root-height = 'stilts': give contact_set or foot_tracks")):
+    with pytest.raises(ValueError, match=re.escape("--task.imitate.retarget-root-height = 'stilts': give contact_set, foot_tracks, contact_smooth")):
         ImitateConfig(retarget_root_height="stilts")
 
 

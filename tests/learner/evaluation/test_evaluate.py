@@ -41,12 +41,36 @@ def test_evaluate_writes_json_maps_markdown_and_strips(tmp_path: Path, capsys) -
         assert len(r["params"]) == len(res["meta"]["param_names"]) and 0 < r["seconds"] <= 0.5 + 1e-9
         assert bool(r["fall_bodies"]) == r["fell"]  # a walker's fall names the bodies that touched the floor
         assert 0.0 < r["ref_root_range_m"] < 0.5 and 0.0 < r["ref_root_step_m"] <= r["ref_root_range_m"]
+        assert -0.5 < r["ref_clearance_m"] < 0.5 and r["ref_clearance_body"] in ("FemurR", "FemurL", "TibiaR", "TibiaL",
+                                                                                   "Pelvis", "Spine")
     assert 0.0 <= res["summary"]["fall_down_pct"] <= 100.0
     # the lower biped's own rule is the paper's (any body but the feet), so the two rates agree
     assert res["summary"]["fall_down_pct_paper_rule"] == res["summary"]["fall_down_pct"]
     assert "fall-down %" in (out / "summary.md").read_text() and "paper's rule" in (out / "summary.md").read_text()
     for png in ("map_return.png", "best.png", "worst.png"):
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", png
+
+
+def test_evaluate_can_retarget_the_reference_another_way(tmp_path: Path) -> None:
+    """`--root-height` and `--clearance` change the reference the episodes follow (and say so),
+    not the checkpoint: the root-bob and clearance figures move, the shapes stay."""
+    from learner.evaluation import evaluate
+
+    _tiny_checkpoint(tmp_path, "tiny")
+    runs = {}
+    for name, extra in (("trained", []), ("smooth", ["--root-height", "contact_smooth", "--clearance", "0.01"])):
+        out = tmp_path / name
+        assert evaluate.main(["--checkpoint", str(tmp_path / "tiny"), "--shapes", "3", "--episode-s", "0.3", "--no-render",
+                              "--out", str(out), *extra]) == 0
+        runs[name] = json.loads((out / "results.json").read_text())
+    assert runs["trained"]["meta"]["root_height"] == "contact_set" and runs["trained"]["meta"]["clearance_m"] == 0.0
+    assert runs["smooth"]["meta"]["root_height"] == "contact_smooth" and runs["smooth"]["meta"]["clearance_m"] == 0.01
+    for a, b in zip(runs["trained"]["shapes"], runs["smooth"]["shapes"]):
+        assert a["params"] == b["params"]
+        assert b["ref_clearance_m"] >= 0.01 - 1e-9
+    steps = [max(r["ref_root_step_m"] for r in runs[n]["shapes"]) for n in ("trained", "smooth")]
+    assert steps[1] < steps[0]  # the third shape's 20 cm jump is gone
+    assert "not as the checkpoint was trained" in (tmp_path / "smooth" / "summary.md").read_text()
 
 
 def test_same_seed_gives_the_same_shapes(tmp_path: Path) -> None:
@@ -117,6 +141,43 @@ def test_summary_tables_falls_by_the_references_root_range() -> None:
     assert [r["fall_down_pct"] for r in rows] == [0.0, 0.0, None, 100.0]
 
 
+def test_summary_tables_falls_by_the_references_clearance() -> None:
+    """A reference that puts a shin into the floor is its own bin, below the ones that clear it."""
+    from common.tasks.base import TaskConfig
+    from common.tasks.registry import task_space
+    from learner.evaluation import eval_core
+
+    space = task_space(TaskConfig(name="lower_biped", body=BodyConfig(parameterization="height_thickness")))
+    clear = [-0.01, 0.003, 0.01, 0.05, 0.08]
+    results = [{"params": list(space.default_array), "fell": c < 0.005, "diverged": False, "return": 1.0,
+                "task_reward": 1.0, "seconds": 1.0, "fall_bodies": [], "ref_clearance_m": c} for c in clear]
+    rows = eval_core.summarize(results, space, 2)["falls_by_ref_clearance"]
+    assert [r["clearance"] for r in rows] == ["under 0 cm", "0-0.5 cm", "0.5-2 cm", "over 2 cm"]
+    assert [r["shapes"] for r in rows] == [1, 1, 1, 2]
+    assert [r["fall_down_pct"] for r in rows] == [100.0, 100.0, 0.0, 0.0]
+
+
+def test_body_clearance_finds_a_shin_pushed_into_the_floor() -> None:
+    import mujoco
+
+    from common.characters import load_character
+    from common.motion.check import body_clearance
+
+    ch = load_character("lower_biped", timestep_s=1 / 480)
+    m = ch.model
+    shins = np.array([m.body("TibiaR").id, m.body("TibiaL").id])
+    standing = m.qpos0.copy()
+    data = mujoco.MjData(m)
+    data.qpos[:] = standing
+    mujoco.mj_kinematics(m, data)
+    high, _ = body_clearance(m, standing[None], shins)
+    sunk = standing.copy()
+    sunk[2] -= high + 0.02  # the whole body lowered until the shins are 2 cm into the floor
+    low, body = body_clearance(m, np.stack([standing, sunk]), shins)
+    assert high > 0.02
+    assert low == pytest.approx(-0.02, abs=1e-9) and body in ("TibiaR", "TibiaL")
+
+
 def test_evaluate_box_scale_draws_shapes_from_the_shrunk_box(tmp_path: Path, capsys) -> None:
     from common.tasks.registry import task_space
     from learner.evaluation import eval_core, evaluate
@@ -152,7 +213,31 @@ def test_ablation_table_has_one_row_per_checkpoint(tmp_path: Path) -> None:
     text = (out / "ablation.md").read_text()
     assert "| `norm` | adaptive k=1, reward norm |" in text
     assert "| `nonorm` | adaptive k=1, no reward norm |" in text
+    assert "fall-down %, paper's rule" in text
+    assert "- Reward normalization lowers falls: **" in text  # the two arms are there to compare
+    assert "- Adaptive sampling: not compared" in text  # no uniform arm
     assert len(json.loads((out / "ablation.json").read_text())) == 2
+
+
+@pytest.mark.parametrize("norm_falls, nonorm_falls, adaptive_map, uniform_map, says", [
+    (10.0, 30.0, 0.6, 0.3, ("normalization lowers falls: **reproduces**", "return map: **reproduces**")),
+    (30.0, 10.0, 0.3, 0.6, ("normalization lowers falls: **does not reproduce**", "return map: **does not reproduce**")),
+])
+def test_ablation_says_whether_the_papers_two_effects_reproduce(norm_falls, nonorm_falls, adaptive_map, uniform_map,
+                                                                says) -> None:
+    from types import SimpleNamespace
+
+    from learner.evaluation import ablation
+
+    def row(preset: str, falls: float, uniformity: float) -> dict:
+        return {"loaded": SimpleNamespace(cfg=PRESETS[preset][1]),
+                "summary": {"fall_down_pct": falls, "return_map_uniformity": uniformity, "fall_down_pct_extreme10": falls}}
+
+    rows = [row("quadruped-fixedshape", 0.0, 1.0), row("quadruped", norm_falls, adaptive_map),
+            row("quadruped-nonorm", nonorm_falls, 0.5), row("quadruped-uniform", 20.0, uniform_map)]
+    text = "\n".join(ablation.effects(rows))
+    for phrase in says:
+        assert phrase in text, text
 
 
 def test_ablation_keeps_two_checkpoints_of_one_run_apart(tmp_path: Path) -> None:

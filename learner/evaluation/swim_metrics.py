@@ -1,0 +1,88 @@
+"""What a swimmer's evaluation measures besides Won & Lee's task reward (METHOD.md A, the fish
+and the manta ray "with lift and drag in water").
+
+A walker's quality is whether it stays up; a swimmer in MuJoCo's fluid cannot fall, so its
+evaluation (`morphmimic evaluate` on a `fish` or `manta` checkpoint) reports, per episode and
+averaged over the shapes:
+
+- **speed error**: | |v| - |v_target| | / |v_target| in %, where v is the centre-of-mass
+  velocity averaged over the task reward's 2 s window (`ImitateEnv._com_velocity_avg`) and
+  v_target the task's target velocity (the clip's cycle velocity, scaled for the body);
+- **heading error**: the angle in degrees between v and v_target in the horizontal plane;
+- **upright %**: the share of control steps on which the root's up axis is within
+  `UPRIGHT_DEG` of the reference root's up axis (a fish or manta rolled on its side or belly up
+  swims, but not as the clip does);
+- **mean speed** (m/s), beside the mean target speed.
+
+The first 2 s of an episode are left out of the speed and heading errors: the window starts
+at rest and would count the start-up as error. These metrics are this project's own; the paper
+reports only task achievement and falls for its swimmers.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from common.tasks.observations import quat_to_mat
+
+UPRIGHT_DEG = 45.0
+"""Largest angle between the root's up axis and the reference root's that counts as upright."""
+
+WARMUP_S = 2.0
+"""Seconds at the start of an episode left out of the speed and heading errors (the COM window)."""
+
+
+class SwimTracker:
+    """Called after every control step of an evaluation episode (`eval_core.run_episode`'s
+    `on_step`); `result()` gives the episode's swim metrics."""
+
+    def __init__(self) -> None:
+        self.speed_err: list[float] = []
+        self.heading_err: list[float] = []
+        self.speed: list[float] = []
+        self.target: list[float] = []
+        self.upright = 0
+        self.steps = 0
+
+    def __call__(self, env: Any, k: int) -> None:
+        self.steps += 1
+        up = quat_to_mat(np.asarray(env.data.qpos[3:7]))[:, 2]
+        up_ref = quat_to_mat(np.asarray(env.ref_q[0][3:7]))[:, 2]
+        if float(np.dot(up, up_ref)) >= math.cos(math.radians(UPRIGHT_DEG)):
+            self.upright += 1
+        if k * env.dt < WARMUP_S:
+            return
+        v, vt = env._com_velocity_avg(), env.target_velocity()
+        speed, target = float(np.linalg.norm(v)), float(np.linalg.norm(vt))
+        self.speed.append(speed)
+        self.target.append(target)
+        if target > 1e-9:
+            self.speed_err.append(100.0 * abs(speed - target) / target)
+            cross, dot = vt[0] * v[1] - vt[1] * v[0], float(np.dot(v, vt))
+            self.heading_err.append(math.degrees(abs(math.atan2(cross, dot))))
+
+    def result(self) -> dict[str, float]:
+        def mean(xs: list[float]) -> float:
+            return float(np.mean(xs)) if xs else float("nan")
+
+        return {"swim_speed_error_pct": mean(self.speed_err), "swim_heading_error_deg": mean(self.heading_err),
+                "swim_upright_pct": 100.0 * self.upright / max(1, self.steps),
+                "swim_speed_m_s": mean(self.speed), "swim_target_speed_m_s": mean(self.target)}
+
+
+SWIM_FIELDS = ("swim_speed_error_pct", "swim_heading_error_deg", "swim_upright_pct", "swim_speed_m_s",
+               "swim_target_speed_m_s")
+
+
+def summarize_swim(results: list[dict]) -> dict[str, float]:
+    """Each swim metric averaged over the episodes that have it (NaN-free ones: an episode
+    shorter than the warm-up has no speed error); {} for a walker's results."""
+    out = {}
+    for field in SWIM_FIELDS:
+        xs = [r[field] for r in results if field in r and np.isfinite(r[field])]
+        if xs:
+            out[field] = float(np.mean(xs))
+    return out
