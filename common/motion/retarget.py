@@ -61,9 +61,11 @@ class RetargetConfig:
     ramp_s: float = 0.1
     """`body_clearance_m`: seconds over which the root rises before, and settles after, a lift."""
     body_clearance_m: float = 0.0
-    """Lift the root where the reference brings a body other than the feet (and what hangs
-    below them) closer to the floor than this, ramped over `ramp_s` on each side
-    (`clearance_lift`); 0: off. A foot floats by the lift on those frames."""
+    """Lift the root where the reference brings a body whose floor contact is a fall closer to
+    the floor than this, ramped over `ramp_s` on each side (`clearance_lift`); 0: off. A foot
+    floats by the lift on those frames."""
+    clearance_shins_may_touch: bool = False
+    """`body_clearance_m`: the segment above each foot may touch the floor (the quadruped's task rule)."""
     root_height: str = "contact_set"
     """How the per-frame root offset is chosen (`root_offsets`): "contact_set" puts the highest
     foot of each frame's contact set on the floor; "foot_tracks" the highest of every foot's
@@ -72,6 +74,10 @@ class RetargetConfig:
     each longer leg by its track's depth below the floor on every frame (`foot_goals`)."""
 
     def __post_init__(self) -> None:
+        for name, low, strict in (("root_speed_m_s", 0.0, True), ("ramp_s", 0.0, False), ("body_clearance_m", 0.0, False)):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and (value > low if strict else value >= low)):
+                raise ValueError(f"{name} = {value!r} must be a finite number {'>' if strict else '>='} {low:g}")
         if self.root_height not in ROOT_HEIGHT_RULES:
             raise ValueError(f"root_height {self.root_height!r} is not one of {' | '.join(ROOT_HEIGHT_RULES)}")
 
@@ -139,24 +145,34 @@ def retarget_qpos(clip: Clip, model: mujoco.MjModel, foot_geoms: tuple[str, ...]
                 depth = goal[k, i] - lowest_z(model, data, geoms[i])
         qpos[k] = data.qpos
     if cfg.body_clearance_m > 0:
-        qpos[:, 2] += clearance_lift(model, qpos, foot_geoms, cfg.body_clearance_m, cfg.ramp_s * clip.fps, clip.loop)
+        qpos[:, 2] += clearance_lift(model, qpos, foot_geoms, cfg.body_clearance_m, cfg.ramp_s * clip.fps, clip.loop,
+                                     cfg.clearance_shins_may_touch)
     return qpos
 
 
 def clearance_lift(model: mujoco.MjModel, qpos: np.ndarray, foot_geoms: tuple[str, ...], clearance_m: float,
-                   ramp_frames: float, loop: bool = False) -> np.ndarray:
-    """Per-frame root lift `[T]` (m) that keeps every geom of the bodies other than the feet
-    (and the bodies below them) at least `clearance_m` above the floor: each frame's deficit,
-    spread as a tent over `ramp_frames` frames on each side (the largest tent wins), so the
-    root rises and settles continuously. Under Won & Lee's fall rule (any floor contact but a
-    foot's) a reference whose shin reaches the floor asks for a fall; on the lower biped's
-    evaluation shapes that happens where thick shins sit on thin feet."""
+                   ramp_frames: float, loop: bool = False, shins_may_touch: bool = False) -> np.ndarray:
+    """Per-frame root lift `[T]` (m) that keeps every geom of the bodies whose floor contact is
+    a fall at least `clearance_m` above the floor: every body but the feet and what hangs below
+    them, and with `shins_may_touch` also but the segment above each foot (the task's rule,
+    `ImitateConfig.shin_contact_is_fall`). Each frame's deficit is spread as a tent over
+    `ramp_frames` frames on each side (the largest tent wins), so the root rises and settles
+    continuously. Under Won & Lee's fall rule (any floor contact but a foot's) a reference
+    whose shin reaches the floor asks for a fall; on the lower biped's evaluation shapes that
+    happens on tall, narrow bodies, whose shin box dips to the floor at heel strike and toe-off."""
     n = len(qpos)
-    feet = set()
-    for f in foot_geoms:
-        ids = foot_geom_ids(model, f)
-        feet.update(int(model.geom_bodyid[g]) for g in ids)
-    geoms = np.array([g for g in range(model.ngeom) if model.geom_bodyid[g] > 0 and int(model.geom_bodyid[g]) not in feet],
+    roots = {int(model.geom(f).bodyid[0]) for f in foot_geoms}
+    if shins_may_touch:
+        roots |= {int(model.body_parentid[b]) for b in roots}
+
+    def exempt(b: int) -> bool:
+        while b > 0:
+            if b in roots:
+                return True
+            b = int(model.body_parentid[b])
+        return False
+
+    geoms = np.array([g for g in range(model.ngeom) if model.geom_bodyid[g] > 0 and not exempt(int(model.geom_bodyid[g]))],
                      dtype=np.int64)
     if len(geoms) == 0:
         return np.zeros(n)
@@ -169,8 +185,10 @@ def clearance_lift(model: mujoco.MjModel, qpos: np.ndarray, foot_geoms: tuple[st
         deficit[k] = max(0.0, clearance_m - float(low))
     if not deficit.any():
         return deficit
-    ramp = np.clip(1.0 - frame_distances(n, loop) / max(ramp_frames, 1e-9), 0.0, 1.0)  # [frame, deficit frame]
-    return np.max(ramp * deficit[None, :], axis=1)
+    lift = np.zeros(n)
+    for j in np.flatnonzero(deficit):
+        lift = np.maximum(lift, deficit[j] * np.clip(1.0 - frame_distances(n, int(j), loop) / max(ramp_frames, 1e-9), 0.0, 1.0))
+    return lift
 
 
 def character_feet(character) -> tuple[str, ...]:

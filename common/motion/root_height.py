@@ -80,7 +80,7 @@ def foot_heights(model: mujoco.MjModel, qpos_frames: np.ndarray, foot_geoms: tup
 
 
 def root_offsets(h: np.ndarray, flags: np.ndarray, rule: str = "contact_set", loop: bool = False,
-                 max_step: float = 0.01) -> np.ndarray:
+                 max_step: float | None = None) -> np.ndarray:
     """Per-frame vertical root offsets `[T]` (m) that put the feet on the floor, from each foot's
     lowest-point height `h [T, F]` (m, before the offset) and its contact flags `[T, F]` on the
     base character (Won & Lee 2019, METHOD.md A: after F, the feet touch the ground; this is the
@@ -94,7 +94,8 @@ def root_offsets(h: np.ndarray, flags: np.ndarray, rule: str = "contact_set", lo
     most `max_step` m between two frames (`lower_envelope`): where the longer leg takes over,
     the root rises at that rate after the switch instead of within a frame, and where the
     shorter one does, it sinks at that rate before it, the leg solve bending the stance leg
-    meanwhile. It never lifts the root above "contact_set", so no stance foot floats.
+    meanwhile. It never lifts the root above "contact_set", so no stance foot floats; a stance
+    foot may sink by up to the leg solve's tolerance (5 mm) where its leg is not solved.
     "foot_tracks" and "contact_smooth" are continuous when the contact set changes,
     "contact_set" is not. `loop`: the clip's
     last frame is its first again (`Clip.loop`), so a gap at the ends is bridged around the
@@ -109,6 +110,8 @@ def root_offsets(h: np.ndarray, flags: np.ndarray, rule: str = "contact_set", lo
     if rule == "foot_tracks":
         return -np.max(foot_tracks(h, flags, loop), axis=1)
     if rule == "contact_smooth":
+        if max_step is None or not max_step > 0:
+            raise ValueError(f"the contact_smooth rule needs max_step > 0 (m per frame), not {max_step!r}")
         return lower_envelope(root_offsets(h, flags, "contact_set", loop), max_step, loop)
     raise ValueError(f"root height rule {rule!r} is not one of {' | '.join(ROOT_HEIGHT_RULES)}")
 
@@ -127,16 +130,32 @@ def foot_tracks(h: np.ndarray, flags: np.ndarray, loop: bool = False) -> np.ndar
 def lower_envelope(x: np.ndarray, max_step: float, loop: bool = False) -> np.ndarray:
     """The largest `y <= x` `[T]` that changes by at most `max_step` between neighbouring frames:
     y_t = min_j (x_j + max_step |t - j|), distances taken around the loop (period T - 1: the
-    last frame repeats the first) for a looping clip."""
-    x = np.asarray(x, dtype=np.float64)
-    return np.min(x[None, :] + max_step * frame_distances(len(x), loop), axis=1)
+    last frame repeats the first) for a looping clip. Linear time: a forward and a backward
+    min-plus pass, twice around for a loop."""
+    y = np.asarray(x, dtype=np.float64).copy()
+    n = len(y)
+    period = n - 1 if loop and n > 2 else None
+    if period:
+        ring = y[:period].copy()
+        for _ in range(2):  # twice around: the wrap reaches every frame from every other
+            for t in range(2 * period):
+                ring[t % period] = min(ring[t % period], ring[(t - 1) % period] + max_step)
+            for t in range(2 * period, 0, -1):
+                ring[t % period] = min(ring[t % period], ring[(t + 1) % period] + max_step)
+        y[:period] = ring
+        y[period] = ring[0]
+        return y
+    for t in range(1, n):
+        y[t] = min(y[t], y[t - 1] + max_step)
+    for t in range(n - 2, -1, -1):
+        y[t] = min(y[t], y[t + 1] + max_step)
+    return y
 
 
-def frame_distances(n: int, loop: bool = False) -> np.ndarray:
-    """`[n, n]` how many frames apart each two frames of a clip are; around the loop for a
+def frame_distances(n: int, j: int, loop: bool = False) -> np.ndarray:
+    """`[n]` how many frames each frame of a clip is from frame `j`; around the loop for a
     looping clip (period n - 1 frames: its last frame repeats the first)."""
-    frames = np.arange(n)
-    d = np.abs(frames[:, None] - frames[None, :]).astype(np.float64)
+    d = np.abs(np.arange(n) - j).astype(np.float64)
     period = n - 1 if loop and n > 2 else None
     if period:
         d = np.minimum(d % period, period - d % period)

@@ -97,7 +97,8 @@ class ImitateEnv:
         self.clip_id = cfg.imitate.clip_id or references.DEFAULT_CLIPS[self.preset]
         self.timestep_s = 1.0 / cfg.sim_hz
         self.retarget = RetargetConfig(root_height=cfg.imitate.retarget_root_height,
-                                       body_clearance_m=cfg.imitate.retarget_body_clearance_m)
+                                       body_clearance_m=cfg.imitate.retarget_body_clearance_m,
+                                       clearance_shins_may_touch=not cfg.imitate.shin_contact_is_fall)
         self.space = self.param_space(cfg)
         self.n_shape = len(self.space.names) - len(cfg.imitate.task_params)
         self.rng = np.random.default_rng(seed)
@@ -275,7 +276,9 @@ class ImitateEnv:
         frame = yaw_matrix(heading(quat_to_mat(d.qpos[3:7])))
         return frame, (d.xpos[self.ee_ids] - d.qpos[0:3]) @ frame
 
-    def _com_velocity_avg(self) -> np.ndarray:
+    def com_velocity_avg(self) -> np.ndarray:
+        """The centre of mass's horizontal velocity `[2]` m/s in the world, averaged over the last
+        `COM_WINDOW_S` (Won & Lee's v_com of the task reward)."""
         n = len(self.com_hist) - 1
         if n == 0:
             # NOTE: only right after a reset, where `_obs` has just run mj_subtreeVel.
@@ -293,7 +296,7 @@ class ImitateEnv:
             rot = frame.T @ quat_to_mat(qref[3:7])
             refs.append(np.concatenate([self.ref_joints[row], [qref[2]], rot[:, 0], rot[:, 1]]))
         v_target = frame[:2, :2].T @ self.target_velocity()
-        v_avg = frame[:2, :2].T @ self._com_velocity_avg()
+        v_avg = frame[:2, :2].T @ self.com_velocity_avg()
         com_vel = frame.T @ d.subtree_linvel[self.root_body]
         phase = 2.0 * math.pi * ((self.tau0 + self.speed * self.k * self.dt) / self.motion.duration_s)
         return np.concatenate([
@@ -314,7 +317,7 @@ class ImitateEnv:
             "pose": rewards.pose_error(balls, balls_ref, d.qpos[self.layout.hinge_qpos], qref[self.layout.hinge_qpos]),
             "velocity": rewards.mean_sq(d.qvel[6:] - self._ref_qvel(self.k)[6:]),
             "end_effector": rewards.end_effector_error(ee, self._ref_ee(qref)),
-            "com_velocity": rewards.mean_sq(self._com_velocity_avg() - self.target_velocity()),
+            "com_velocity": rewards.mean_sq(self.com_velocity_avg() - self.target_velocity()),
             "direction": rewards.direction_error(facing, facing_ref, norm),
             "torque": rewards.torque_error(d.actuator_force, self.tau_scale, norm),
         }

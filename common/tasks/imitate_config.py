@@ -48,8 +48,9 @@ class ImitateConfig:
     retarget_body_clearance_m: float = 0.0
     """Walkers: lift the retargeted reference's root where it brings a body other than the
     feet closer to the floor than this (m; `common.motion.retarget.clearance_lift`), so the
-    reference never asks for a fall; 0: off. The lower biped preset keeps 1 cm: on 300
-    evaluation shapes the unlifted walk put a shin within 5 mm of the floor on 8, and all 8 fell."""
+    reference never asks for a fall (by this task's rule); 0: off. On the lower biped's 300
+    evaluation shapes the unlifted walk put a shin within 5 mm of the floor on 8, and all 8 fell
+    with `lower_biped-curriculum` (`morphmimic references`, `morphmimic evaluate`)."""
     shin_contact_is_fall: bool = True
     """Walkers: False lets the segment above each foot (a quadruped's shank) touch the floor
     without it counting as a fall; the trunk, head and thighs still end the episode."""

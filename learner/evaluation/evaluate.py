@@ -183,6 +183,9 @@ def main(argv: list[str]) -> int:
 
     task = eval_core.eval_task(loaded.cfg.task, args.episode_s, args.box_scale)
     env = make_env(task, seed=0)
+    if env.character.is_swimmer and (args.root_height is not None or args.clearance is not None):
+        raise SystemExit(f"--root-height/--clearance: {loaded.name} is a swimmer ({task.name}); its reference has no "
+                         "feet to retarget onto the floor")
     space = env.space
     n_shape = getattr(env, "n_shape", space.dim)
     out = Path(args.out) if args.out else loaded.path.parent / "eval"

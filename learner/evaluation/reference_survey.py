@@ -89,9 +89,9 @@ def main(argv: list[str]) -> int:
     p.add_argument("--shapes", type=cli_args.positive_int, default=300, help="random shapes (the evaluation's 300)")
     p.add_argument("--seed", type=cli_args.seed, default=2019, help="seed of the shape draws (the evaluation's)")
     p.add_argument("--rules", nargs="+", choices=ROOT_HEIGHT_RULES, default=list(ROOT_HEIGHT_RULES),
-                   help="root-height rules to compare")
+                   help="root-height rules to compare (default: all)")
     p.add_argument("--clearances", nargs="+", type=cli_args.clearance, default=[0.0, 0.01],
-                   help="body clearances (m) to compare, each with every rule")
+                   help="body clearances (m) to compare, each with every rule (default: 0 0.01)")
     p.add_argument("--out", default="", help="output directory (default: none, print only)")
     args = p.parse_args(argv)
     env = make_env(PRESETS[args.preset][1].task, seed=0)

@@ -1,13 +1,15 @@
 """What a swimmer's evaluation measures besides Won & Lee's task reward (METHOD.md A, the fish
 and the manta ray "with lift and drag in water").
 
-A walker's quality is whether it stays up; a swimmer in MuJoCo's fluid cannot fall, so its
-evaluation (`morphmimic evaluate` on a `fish` or `manta` checkpoint) reports, per episode and
-averaged over the shapes:
+A walker's quality is mostly whether it stays up. A swimmer in MuJoCo's fluid has no floor to
+fall on (its episode ends as a "fall" only when its root is more than `max_root_deviation` body
+lengths from the reference's), so its evaluation (`morphmimic evaluate` on a `fish` or `manta`
+checkpoint) also reports, per episode and averaged over the shapes:
 
-- **speed error**: | |v| - |v_target| | / |v_target| in %, where v is the centre-of-mass
-  velocity averaged over the task reward's 2 s window (`ImitateEnv._com_velocity_avg`) and
-  v_target the task's target velocity (the clip's cycle velocity, scaled for the body);
+- **speed error**: | |v| - |v_target| | / |v_target| in %, where v is the centre of mass's
+  horizontal velocity averaged over the task reward's 2 s window (`ImitateEnv.com_velocity_avg`)
+  and v_target the task's horizontal target velocity (the clip's cycle velocity, scaled for
+  the body); a climb or a dive is not counted here but in the root's distance;
 - **heading error**: the angle in degrees between v and v_target in the horizontal plane;
 - **upright %**: the share of control steps on which the root's up axis is within
   `UPRIGHT_DEG` of the reference root's up axis (a fish or manta rolled on its side or belly up
@@ -26,12 +28,13 @@ from typing import Any
 
 import numpy as np
 
+from common.tasks.imitate import COM_WINDOW_S
 from common.tasks.observations import quat_to_mat
 
 UPRIGHT_DEG = 45.0
 """Largest angle between the root's up axis and the reference root's that counts as upright."""
 
-WARMUP_S = 2.0
+WARMUP_S = COM_WINDOW_S
 """Seconds at the start of an episode left out of the speed and heading errors (the COM window)."""
 
 
@@ -55,7 +58,7 @@ class SwimTracker:
             self.upright += 1
         if k * env.dt < WARMUP_S:
             return
-        v, vt = env._com_velocity_avg(), env.target_velocity()
+        v, vt = env.com_velocity_avg(), env.target_velocity()
         speed, target = float(np.linalg.norm(v)), float(np.linalg.norm(vt))
         self.speed.append(speed)
         self.target.append(target)
@@ -64,9 +67,10 @@ class SwimTracker:
             cross, dot = vt[0] * v[1] - vt[1] * v[0], float(np.dot(v, vt))
             self.heading_err.append(math.degrees(abs(math.atan2(cross, dot))))
 
-    def result(self) -> dict[str, float]:
-        def mean(xs: list[float]) -> float:
-            return float(np.mean(xs)) if xs else float("nan")
+    def result(self) -> dict[str, float | None]:
+        """The episode's figures; None where an episode ended inside the warm-up (JSON has no NaN)."""
+        def mean(xs: list[float]) -> float | None:
+            return float(np.mean(xs)) if xs else None
 
         return {"swim_speed_error_pct": mean(self.speed_err), "swim_heading_error_deg": mean(self.heading_err),
                 "swim_upright_pct": 100.0 * self.upright / max(1, self.steps),
@@ -78,11 +82,11 @@ SWIM_FIELDS = ("swim_speed_error_pct", "swim_heading_error_deg", "swim_upright_p
 
 
 def summarize_swim(results: list[dict]) -> dict[str, float]:
-    """Each swim metric averaged over the episodes that have it (NaN-free ones: an episode
-    shorter than the warm-up has no speed error); {} for a walker's results."""
+    """Each swim metric averaged over the episodes that have it (an episode shorter than the
+    warm-up has no speed error: None); {} for a walker's results."""
     out = {}
     for field in SWIM_FIELDS:
-        xs = [r[field] for r in results if field in r and np.isfinite(r[field])]
+        xs = [r[field] for r in results if r.get(field) is not None and np.isfinite(r[field])]
         if xs:
             out[field] = float(np.mean(xs))
     return out

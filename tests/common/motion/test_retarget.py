@@ -167,11 +167,57 @@ def test_lower_envelope_keeps_its_rate_around_the_loop():
     np.testing.assert_allclose(lower_envelope(x, 1.0), x)  # a loose rate changes nothing
 
 
+@pytest.mark.parametrize("loop", [False, True])
+def test_lower_envelope_is_the_min_plus_cone_envelope(loop):
+    """The linear-time passes give y_t = min_j (x_j + s d(t, j)) exactly, d around the loop."""
+    from common.motion.root_height import frame_distances, lower_envelope
+
+    rng = np.random.default_rng(7)
+    for n in (3, 17, 66):
+        x = rng.normal(0.0, 0.05, n)
+        if loop:
+            x[-1] = x[0]
+        brute = np.array([np.min(x + 0.01 * frame_distances(n, t, loop)) for t in range(n)])
+        np.testing.assert_allclose(lower_envelope(x, 0.01, loop), brute, atol=1e-12)
+
+
+def test_bad_smoothing_settings_are_refused():
+    h, flags = np.zeros((4, 1)), np.ones((4, 1), dtype=bool)
+    with pytest.raises(ValueError, match="contact_smooth rule needs max_step > 0"):
+        root_offsets(h, flags, "contact_smooth")
+    for field, value in (("root_speed_m_s", 0.0), ("ramp_s", -1.0), ("body_clearance_m", float("nan"))):
+        with pytest.raises(ValueError, match=f"{field} = "):
+            RetargetConfig(**{field: value})
+
+
+def test_the_clearance_lift_follows_the_tasks_fall_rule():
+    """The quadruped's task lets its shanks touch: a shank near the floor does not lift its
+    reference (it does once the paper's rule is asked for)."""
+    import dataclasses
+
+    from common.tasks.registry import make_env, task_space
+    from learner.presets import PRESETS
+
+    task = PRESETS["quadruped"][1].task
+    assert not task.imitate.shin_contact_is_fall
+    shape = task_space(task).uniform(np.random.default_rng(2019), 6)[5]  # the evaluation's 6th shape
+
+    def root_z(clearance: float, shins_fall: bool) -> np.ndarray:
+        env = make_env(dataclasses.replace(task, imitate=dataclasses.replace(
+            task.imitate, retarget_body_clearance_m=clearance, shin_contact_is_fall=shins_fall)))
+        env.reset(0, shape)
+        return env.motion.qpos_frames[:, 2]
+
+    plain = root_z(0.0, False)
+    np.testing.assert_array_equal(root_z(0.01, False), plain)
+    assert np.max(root_z(0.01, True) - plain) > 0.01  # a shank 6 mm into the floor: lifted by 16 mm
+
+
 def test_contact_smooth_and_the_clearance_lift_on_the_mass_walk():
     """Two of `morphmimic evaluate`'s 300 lower-biped shapes. The third, whose legs differ in
     length: "contact_set" lifts the root by 20 cm within a frame when the long leg takes over;
     "contact_smooth" by at most its rate, and the stance feet stay on the floor. The 37th, a
-    short body with thick shins on thin feet: its retargeted walk puts a shin into the floor,
+    tall, narrow body (height x1.49, width x0.69): its retargeted walk puts a shin into the floor,
     which the 1 cm clearance lift removes at the cost of a foot floating under 3 cm."""
     import dataclasses
 

@@ -214,14 +214,16 @@ def test_ablation_table_has_one_row_per_checkpoint(tmp_path: Path) -> None:
     assert "| `norm` | adaptive k=1, reward norm |" in text
     assert "| `nonorm` | adaptive k=1, no reward norm |" in text
     assert "fall-down %, paper's rule" in text
-    assert "- Reward normalization lowers falls: **" in text  # the two arms are there to compare
-    assert "- Adaptive sampling: not compared" in text  # no uniform arm
+    assert "- lower_biped, reward normalization lowers falls: **" in text  # the two arms are there to compare
+    assert "- lower_biped, adaptive sampling: not compared" in text  # no uniform arm
     assert len(json.loads((out / "ablation.json").read_text())) == 2
 
 
 @pytest.mark.parametrize("norm_falls, nonorm_falls, adaptive_map, uniform_map, says", [
     (10.0, 30.0, 0.6, 0.3, ("normalization lowers falls: **reproduces**", "return map: **reproduces**")),
     (30.0, 10.0, 0.3, 0.6, ("normalization lowers falls: **does not reproduce**", "return map: **does not reproduce**")),
+    (20.0, 21.0, 0.52, 0.5, ("normalization lowers falls: **inconclusive", "return map: **inconclusive")),
+    (20.0, 30.0, float("nan"), 0.5, ("normalization lowers falls: **reproduces**", "return map: **not measurable**")),
 ])
 def test_ablation_says_whether_the_papers_two_effects_reproduce(norm_falls, nonorm_falls, adaptive_map, uniform_map,
                                                                 says) -> None:
@@ -231,13 +233,17 @@ def test_ablation_says_whether_the_papers_two_effects_reproduce(norm_falls, nono
 
     def row(preset: str, falls: float, uniformity: float) -> dict:
         return {"loaded": SimpleNamespace(cfg=PRESETS[preset][1]),
-                "summary": {"fall_down_pct": falls, "return_map_uniformity": uniformity, "fall_down_pct_extreme10": falls}}
+                "summary": {"fall_down_pct": falls - 5.0, "fall_down_pct_paper_rule": falls,
+                            "return_map_uniformity": uniformity, "fall_down_pct_extreme10": falls}}
 
-    rows = [row("quadruped-fixedshape", 0.0, 1.0), row("quadruped", norm_falls, adaptive_map),
-            row("quadruped-nonorm", nonorm_falls, 0.5), row("quadruped-uniform", 20.0, uniform_map)]
-    text = "\n".join(ablation.effects(rows))
+    # a fixed-shape arm and another task's arms are not part of the quadruped's comparisons
+    rows = [row("quadruped-fixedshape", 0.0, 1.0), row("lower_biped-nonorm", 0.0, 1.0),
+            row("quadruped", norm_falls, adaptive_map), row("quadruped-nonorm", nonorm_falls, 0.5),
+            row("quadruped-uniform", 20.0, uniform_map)]
+    text = "\n".join(line for line in ablation.effects(rows) if line.startswith("- quadruped"))
     for phrase in says:
         assert phrase in text, text
+    assert "lower_biped, reward normalization: not compared" in "\n".join(ablation.effects(rows))
 
 
 def test_ablation_keeps_two_checkpoints_of_one_run_apart(tmp_path: Path) -> None:
