@@ -16,8 +16,8 @@ and the clip phase (sin, cos).
 
 Reward: `rewards.py` (weights and sensitivities from METHOD.md A, reward normalization
 switchable: `TaskConfig.reward_normalization`). Termination: a fall (a floor contact of any
-body but the feet, or for swimmers a root further than `max_root_deviation` body lengths from
-the reference) terminates; the horizon (`episode_s`, 30 s) and simulator divergence truncate.
+body but the feet, or for swimmers a root further than `max_root_deviation` body lengths off
+the reference's course, sideways or vertically) terminates; the horizon (`episode_s`, 30 s) and simulator divergence truncate.
 """
 
 from __future__ import annotations
@@ -326,18 +326,31 @@ class ImitateEnv:
     def fell(self) -> bool:
         """A floor contact of a body other than the feet (and shins, see
         `TaskConfig.shin_contact_is_fall`) for walkers, or a swimmer's root further
-        than `max_root_deviation` body lengths from the reference root."""
+        than `max_root_deviation` body lengths off its reference's course (`off_course_m`)."""
         d = self.data
         if self.character.is_swimmer:
             if self.cfg.imitate.max_root_deviation <= 0:
                 return False
-            return float(np.linalg.norm(d.qpos[0:3] - self.ref_q[0][0:3])) > self.cfg.imitate.max_root_deviation * self.length_m
+            return self.off_course_m() > self.cfg.imitate.max_root_deviation * self.length_m
         for i in range(d.ncon):
             c = d.contact[i]
             b1, b2 = self.model.geom_bodyid[c.geom1], self.model.geom_bodyid[c.geom2]
             if not (self.allowed_contact[b1] and self.allowed_contact[b2]):
                 return True
         return False
+
+    def off_course_m(self) -> float:
+        """A swimmer's distance (m) from its reference's course: the root's offset from the
+        reference root with the part along the direction of travel removed (sideways and
+        vertical). Lagging behind or running ahead is left to the task term and the speed error:
+        a body's stroke may be slower or faster than the speed its reference is scaled to (on
+        random fish shapes, 0.78-1.18 times it with the stroke tracked closely; manta 0.64-1.65:
+        `common.tasks.stroke_speed`), and that must not end the episode as a fall."""
+        offset = self.data.qpos[0:3] - self.ref_q[0][0:3]
+        v = self.rot[:2, :2] @ self.v0
+        n = float(np.linalg.norm(v))
+        along = np.array([v[0] / n, v[1] / n, 0.0]) if n > 1e-9 else self.rot[:, 0]
+        return float(np.linalg.norm(offset - (offset @ along) * along))
 
     def paper_fell(self) -> bool:
         """Won & Lee 2019's fall: a walker's floor contact of any body other than the feet (the

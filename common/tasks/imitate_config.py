@@ -55,8 +55,9 @@ class ImitateConfig:
     """Walkers: False lets the segment above each foot (a quadruped's shank) touch the floor
     without it counting as a fall; the trunk, head and thighs still end the episode."""
     max_root_deviation: float = 0.0
-    """Swimmers: terminate (as a fall) when the root is this many body lengths from the
-    reference root; 0 turns it off."""
+    """Swimmers: terminate (as a fall) when the root is this many body lengths off the
+    reference's course (sideways or vertically; lagging or leading along it is not a fall, see
+    `ImitateEnv.off_course_m`); 0 turns it off."""
     reward_weights: tuple[float, ...] = ()
     """W1..w6 (empty: the character's row of METHOD.md A's table)."""
     reward_sensitivities: tuple[float, ...] = (0.02, 0.5, 0.2, 0.2, 0.05, 0.1)

@@ -3,7 +3,7 @@ and the manta ray "with lift and drag in water").
 
 A walker's quality is mostly whether it stays up. A swimmer in MuJoCo's fluid has no floor to
 fall on (its episode ends as a "fall" only when its root is more than `max_root_deviation` body
-lengths from the reference's), so its evaluation (`morphmimic evaluate` on a `fish` or `manta`
+lengths off the reference's course, sideways or vertically), so its evaluation (`morphmimic evaluate` on a `fish` or `manta`
 checkpoint) also reports, per episode and averaged over the shapes:
 
 - **speed error**: | |v| - |v_target| | / |v_target| in %, where v is the centre of mass's

@@ -74,12 +74,21 @@ def test_horizon_truncates_without_terminating() -> None:
     assert all(e == (False, False) for e in ends[:-1])
 
 
-def test_swimmer_far_from_its_reference_terminates() -> None:
-    env = make_env(TaskConfig(name="fish", control_hz=30.0, sim_hz=480.0, imitate=ImitateConfig(max_root_deviation=1.0)), seed=0)
-    env.reset(0, env.space.default_array)
-    env.data.qpos[0] += 3.0 * env.length_m
+@pytest.mark.parametrize("offset, ends", [((0.0, 3.0, 0.0), True), ((0.0, 0.0, -3.0), True), ((-3.0, 0.0, 0.0), False),
+                                           ((3.0, 0.5, 0.0), False)])
+def test_a_swimmer_off_its_reference_course_terminates_but_not_one_behind_or_ahead(offset, ends) -> None:
+    """Sideways or vertically more than a body length off the reference's course is a fall;
+    lagging behind or leading along it is not (a body's stroke may be slower or faster than its
+    scaled reference), with the reference heading turned 90 degrees so "along" is the world's y."""
+    cfg = TaskConfig(name="fish", control_hz=30.0, sim_hz=480.0,
+                     imitate=ImitateConfig(max_root_deviation=1.0, task_params=("heading",)))
+    env = make_env(cfg, seed=0)
+    env.reset(0, np.concatenate([env.space.default_array[:-1], [np.pi / 2]]))
+    turned = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # reference x -> world y
+    env.data.qpos[0:3] = env.ref_q[0][0:3] + turned @ np.asarray(offset) * env.length_m
     mujoco.mj_forward(env.model, env.data)
-    assert env.step(np.zeros(env.act_dim))[2]
+    assert env.off_course_m() == pytest.approx(np.linalg.norm(offset[1:]) * env.length_m, rel=1e-9)
+    assert env.step(np.zeros(env.act_dim))[2] is ends
 
 
 def test_a_swimmers_reference_covers_the_distance_its_target_velocity_asks_for() -> None:
