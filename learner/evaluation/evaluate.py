@@ -125,13 +125,25 @@ def markdown(name: str, summary: dict, args: argparse.Namespace, files: list[str
            *(f"| {row['clearance']} | {row['shapes']} | "
              f"{'-' if row['fall_down_pct'] is None else format(row['fall_down_pct'], '.0f')} |"
              for row in s["falls_by_ref_clearance"]), ""] if s.get("falls_by_ref_clearance") else []),
-        "Paper (Won & Lee 2019, 300 shapes, 30 s, 50-100 M transitions): fall-down 20.7% for the lower-body biped "
-        "(54.1% without reward normalization), 9.3% for the quadruped (11.1%). Task achievement is this project's "
-        "own scale and is not comparable with the paper's; every difference from the paper's protocol is listed in "
-        "docs/shape-controllers.md (\"How this project's protocol differs from the paper's\").", "",
+        paper_line(loaded.cfg.task.name), "",
         "Files: " + ", ".join(f"`{Path(f).name}`" for f in files), "",
     ]
     return "\n".join(lines)
+
+
+PAPER_FALL_DOWN = {"lower_biped": "fall-down 20.7% for the lower-body biped (54.1% without reward normalization)",
+                   "quadruped": "fall-down 9.3% for the quadruped (11.1% without reward normalization)"}
+
+
+def paper_line(task: str) -> str:
+    """The summary's line on Won & Lee's own figure for this character (their Table 4 has the
+    lower-body biped and the quadruped only) and on how far the protocols differ."""
+    figure = (f"{PAPER_FALL_DOWN[task]}" if task in PAPER_FALL_DOWN
+              else f"no fall-down figure for this character (`{task}`); its Table 4 has the lower-body biped (20.7%) "
+                   "and the quadruped (9.3%)")
+    return ("Paper (Won & Lee 2019, 300 shapes, 30 s, 50-100 M transitions): " + figure + ". Task achievement is "
+            "this project's own scale and is not comparable with the paper's; every difference from the paper's "
+            "protocol is listed in docs/shape-controllers.md (\"How this project's protocol differs from the paper's\").")
 
 
 def swim_rows(s: dict) -> list[str]:

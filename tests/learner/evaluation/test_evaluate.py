@@ -392,3 +392,15 @@ def test_the_papers_fall_rule_can_end_the_episodes() -> None:
     assert all(r["fell_paper_rule"] >= r["fell"] for r in task)
     assert [r["fell_paper_rule"] for r in paper] == [r["fell_paper_rule"] for r in task]
     assert all(p["steps"] <= t["steps"] for p, t in zip(paper, task))
+
+
+@pytest.mark.parametrize("task, says", [("lower_biped", "fall-down 20.7% for the lower-body biped"),
+                                        ("quadruped", "fall-down 9.3% for the quadruped"),
+                                        ("fish", "no fall-down figure for this character (`fish`)"),
+                                        ("biped", "no fall-down figure for this character (`biped`)")])
+def test_the_summary_sets_beside_a_character_only_the_papers_figure_for_it(task, says):
+    from learner.evaluation.evaluate import paper_line
+
+    line = paper_line(task)
+    assert says in line and "not comparable" in line
+    assert ("20.7%" in line) == (task != "quadruped") and ("9.3%" in line) == (task != "lower_biped")
