@@ -221,9 +221,19 @@ def _close(run: Run) -> None:
     run.stop.restore()
 
 
+STOP_SIGNAL, STOP_BUDGET, STOP_ITERATIONS = "stopped by signal", "step budget reached", "iteration limit reached"
+
+
 def train(cfg: RunConfig, on_iteration: Callable[[Run, dict[str, float]], None] | None = None) -> int:
     """Run training to the step budget (or iteration limit, or a stop signal); returns the exit
     code. `on_iteration(run, metrics)` is called after each iteration (benchmarks, fault tests)."""
+    train_until_stop(cfg, on_iteration)
+    return 0
+
+
+def train_until_stop(cfg: RunConfig, on_iteration: Callable[[Run, dict[str, float]], None] | None = None) -> str:
+    """`train`, returning why it stopped: STOP_SIGNAL (Ctrl-C, SIGTERM or a hook's request),
+    STOP_BUDGET or STOP_ITERATIONS."""
     run = _start(cfg)
     try:
         learner = run.learner
@@ -255,12 +265,12 @@ def train(cfg: RunConfig, on_iteration: Callable[[Run, dict[str, float]], None] 
             run.save()
         run.sampler.plot(run.run_dir / "sampler_vm.png")
         reason = (
-            "stopped by signal" if run.stop
-            else "step budget reached" if learner.env_steps >= cfg.total_env_steps
-            else "iteration limit reached"
+            STOP_SIGNAL if run.stop
+            else STOP_BUDGET if learner.env_steps >= cfg.total_env_steps
+            else STOP_ITERATIONS
         )
         run.out.line(f"[morphmimic] {reason}: iteration {learner.iteration}, {learner.env_steps:,d} env steps; outputs in {run.run_dir}")
-        return 0
+        return reason
     finally:
         _close(run)
 

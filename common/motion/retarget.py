@@ -200,8 +200,8 @@ def swim_path_scaled(clip: Clip, ratio: float) -> Clip:
     """A swimmer's clip with its root path scaled by `ratio` (body length over the base's) about
     the first frame: a body twice as long covers twice the distance per stroke cycle. This is
     the swimmer's counterpart of the walkers' stride scaling, and what the task's target
-    velocity (v0 times the same length ratio, reward normalization) and its fall rule (the root
-    within so many body lengths of the reference root) assume."""
+    velocity (v0 times the same length ratio, reward normalization) assumes. (The stroke of a
+    random shape may still be slower or faster than that: `common.tasks.stroke_speed`.)"""
     if not np.isfinite(ratio) or ratio <= 0:
         raise ValueError(f"length ratio {ratio!r} must be a finite number > 0")
     return dataclasses.replace(clip, root_pos=clip.root_pos[0] + ratio * (clip.root_pos - clip.root_pos[0]))

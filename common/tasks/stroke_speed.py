@@ -6,9 +6,9 @@ Won & Lee 2019 (METHOD.md A) drive the fish and the manta ray with hand-made sin
 keyframes whose root moves forward; in MuJoCo's fluid the root's speed is not free but what the
 stroke's thrust gives. A reference whose root runs slower than its own stroke pushes is a
 contradiction the policy cannot resolve: the imitation terms reward tracking the stroke, and a
-tracked stroke outswims the root (a swimmer more than a body length from its reference's root
-has fallen). So the clip's speed is measured with the stroke tracked closely: the base body's
-PD gains stiffened `gain_scale` times (kp x s, kd x sqrt(s)), its torque limits kept (what a
+tracked stroke outswims the root (a swimmer used to count as fallen more than a body length
+from its reference's root; now only off its course, `ImitateEnv.off_course_m`). So the clip's
+speed is measured with the stroke tracked closely: the base body's PD gains stiffened `gain_scale` times (kp x s, kd x sqrt(s)), its torque limits kept (what a
 policy can reach), zero action, from `start_s` to `stop_s`.
 """
 
@@ -47,8 +47,8 @@ def stroke_speed(preset: str, gain_scale: float = CLOSE_TRACKING_GAIN, start_s: 
         raise ValueError(f"stroke speed: {preset!r} is not a swimmer; choose one of {SWIMMERS}")
     if not (np.isfinite(gain_scale) and gain_scale >= 1.0):
         raise ValueError(f"stroke speed: gain scale {gain_scale} must be a finite number >= 1")
-    if not 0.0 <= start_s < stop_s <= 60.0:
-        raise ValueError(f"stroke speed: window [{start_s}, {stop_s}] s must satisfy 0 <= start < stop <= 60")
+    if not (0.0 <= start_s and start_s + 1.0 <= stop_s <= 60.0):
+        raise ValueError(f"stroke speed: window [{start_s}, {stop_s}] s must satisfy 0 <= start, start + 1 <= stop <= 60")
     task = PRESETS[preset][1].task
     task = dataclasses.replace(task, episode_s=stop_s + 1.0, imitate=dataclasses.replace(
         task.imitate, max_root_deviation=0.0, random_start_phase=False))
@@ -59,7 +59,7 @@ def stroke_speed(preset: str, gain_scale: float = CLOSE_TRACKING_GAIN, start_s: 
     m.actuator_biasprm[:, 1] *= gain_scale
     m.actuator_biasprm[:, 2] *= np.sqrt(gain_scale)
     start, stop = round(start_s * task.control_hz), round(stop_s * task.control_hz)
-    x0, errors = 0.0, []
+    x0, errors = float(env.data.qpos[0]), []
     for k in range(1, stop + 1):
         env.step(np.zeros(env.act_dim))
         if k == start:

@@ -88,5 +88,8 @@ def test_stroke_speed_refuses_what_it_cannot_measure():
         stroke_speed("quadruped")
     with pytest.raises(ValueError, match="gain scale 0.5 must be"):
         stroke_speed("fish", gain_scale=0.5)
-    with pytest.raises(SystemExit):
+    with pytest.raises(ValueError, match=r"window \[5.0, 5.5\] s must satisfy"):
+        stroke_speed("fish", start_s=5.0, stop_s=5.5)
+    with pytest.raises(SystemExit) as exc:
         main(["fish", "--gains", "nan"])
+    assert exc.value.code == 2

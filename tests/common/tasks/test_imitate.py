@@ -93,8 +93,8 @@ def test_a_swimmer_off_its_reference_course_terminates_but_not_one_behind_or_ahe
 
 def test_a_swimmers_reference_covers_the_distance_its_target_velocity_asks_for() -> None:
     """A short and a long fish: the reference root moves at the target velocity (v0 times the
-    body-length ratio), so following the target keeps the swimmer near the reference root, which
-    the fall rule needs (the reference used to move at v0 whatever the length)."""
+    body-length ratio), so the task's target and the reference agree on every length (the
+    reference used to move at v0 whatever the length)."""
     env = make_env(TaskConfig(name="fish", control_hz=30.0, sim_hz=480.0), seed=0)
     speeds = {}
     for name, shape in (("short", env.space.low_array), ("long", env.space.high_array)):
