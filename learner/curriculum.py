@@ -157,17 +157,26 @@ def main(argv: list[str] | None = None) -> int:
     done, saved = run_state(run_dir)
     if saved is not None and (why := mismatch(saved, cfg)):
         p.error(f"run {run_dir} was trained as another run ({why}); give another --name")
+    own = saved is not None
+    if not own and cfg.resume not in ("auto", "never"):
+        # a fork: the stages count from the forked checkpoint's steps
+        from learner import checkpoint
+
+        try:
+            done = int(checkpoint.load(Path(cfg.resume)).get("env_steps", 0))
+        except checkpoint.CheckpointError as exc:
+            p.error(f"--resume {cfg.resume}: {exc}")
     try:
         for i, stage in enumerate(stages, 1):
             label = f"[curriculum] stage {i}/{len(stages)} (box x{stage.box_scale:g} until {stage.until_steps:,d} steps)"
             if done >= stage.until_steps:
                 print(f"{label}: done ({done:,d} steps)", flush=True)
                 continue
-            stage_argv = (_without_resume(learner_argv) + ["--resume", "auto"]) if done else list(learner_argv)
+            stage_argv = (_without_resume(learner_argv) + ["--resume", "auto"]) if own else list(learner_argv)
             print(f"{label}: from {done:,d} steps", flush=True)
             reason = train_until_stop(learner_main.parse(
                 stage_argv + ["--task.body.shape-box-scale", str(stage.box_scale), "--total-env-steps", str(stage.until_steps)]))
-            done = run_state(run_dir)[0]
+            done, own = run_state(run_dir)[0], True
             if reason != STOP_BUDGET or done < stage.until_steps:
                 print(f"{label}: {reason} at {done:,d} steps; run the same command to continue", flush=True)
                 return 0

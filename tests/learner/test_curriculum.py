@@ -92,3 +92,21 @@ def test_a_run_trained_as_another_is_not_continued(tmp_path: Path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["--stages", "1:2048", *base, "--preset", "lower_biped-tiny", "--sampler.k", "0"])
     assert exc.value.code == 2 and "was trained as another run (sampler.k: checkpoint 1.0, command 0.0)" in capsys.readouterr().err
+
+
+def test_a_fork_counts_its_stages_from_the_forked_checkpoint(tmp_path: Path, capsys):
+    """`--resume PATH` into a new run: stages the forked checkpoint has passed are skipped, the
+    first one left starts from it, and the new run then continues its own checkpoints."""
+    common = ["--mode", "serial", "--runs-dir", str(tmp_path), "--quiet", "--preset", "lower_biped-tiny"]
+    assert main(["--stages", "1:1024", "--", "--name", "parent", *common]) == 0
+    parent = checkpoint.load_latest(tmp_path / "parent" / "ckpt")[0]
+    capsys.readouterr()
+    argv = ["--stages", "0.5:1024", "1:2048", "--", "--name", "fork", "--resume", str(parent), *common]
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "stage 1/2 (box x0.5 until 1,024 steps): done (1,024 steps)" in printed
+    assert "stage 2/2 (box x1 until 2,048 steps): from 1,024 steps" in printed
+    assert checkpoint.load_latest(tmp_path / "fork" / "ckpt")[1]["env_steps"] == 2048
+    with pytest.raises(SystemExit) as exc:
+        main(["--stages", "1:2048", "--", "--name", "other", "--resume", str(tmp_path / "nothing"), *common])
+    assert exc.value.code == 2 and "--resume" in capsys.readouterr().err
