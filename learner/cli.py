@@ -11,6 +11,7 @@ import sys
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("learner.main", "train a controller (same as `python -m learner.main`)"),
+    "distill": ("learner.distill", "start a torque executor from a PD executor (DAgger), to train on with --resume"),
     "curriculum": ("learner.curriculum", "train through a shape curriculum (box x0.25 ... whole box) in one resumable command"),
     "evaluate": ("learner.evaluation.evaluate", "evaluate a checkpoint: random shapes (Won & Lee) or, for the executor, clips by split (UniCon)"),
     "ablation": ("learner.evaluation.ablation", "compare checkpoints on the same shapes (or clips): the ablation table"),

@@ -30,6 +30,7 @@ would decay to zero at every stage's end, so it is refused.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import re
 import sys
@@ -72,7 +73,7 @@ def parse_stage(text: str) -> Stage:
 
 def check_stages(stages: list[Stage]) -> list[Stage]:
     """The stages if each ends later than the one before and none shrinks the box (ValueError otherwise)."""
-    for before, after in zip(stages, stages[1:]):
+    for before, after in itertools.pairwise(stages):
         if after.until_steps <= before.until_steps:
             raise ValueError(f"stage {after.box_scale:g}:{after.until_steps} must end after the stage before it "
                              f"({before.box_scale:g}:{before.until_steps}): N counts the run's steps from its start")
