@@ -12,9 +12,10 @@ declare -A ARGS=(
   [qabl-fixedshape]="--preset quadruped-fixedshape --ppo.gamma 0.99 --total-env-steps 7300000 --mode serial"
   [fish]="--preset fish --mode serial"
   [manta]="--preset manta --mode serial"
+  [executor-torque]="--preset executor --mode serial"
 )
 names=("$@")
-[ ${#names[@]} -eq 0 ] && names=(qabl-adaptive qabl-uniform qabl-nonorm qabl-fixedshape fish manta)
+[ ${#names[@]} -eq 0 ] && names=(qabl-adaptive qabl-uniform qabl-nonorm qabl-fixedshape fish manta executor-torque)
 mkdir -p runs
 for name in "${names[@]}"; do
   [ -n "${ARGS[$name]+x}" ] || { echo "resume.sh: unknown run '$name'; choose one of ${!ARGS[*]}" >&2; exit 2; }
