@@ -1,7 +1,7 @@
 """`morphmimic distill`: start a torque executor from a PD executor (DAgger), then train it on.
 
     morphmimic distill --teacher learner/pretrained/executor --out runs/executor-distilled
-    python -m learner.main --preset executor --name executor-torque --resume runs/executor-distilled
+    python -m learner.main --preset executor --name executor-torque --resume runs/executor-distilled/ckpt/00000900
 
 UniCon 2020 (METHOD.md B) trains its torque executor from scratch; on this 2-core machine no
 torque run survived UniCon's per-term rule past its 30-step wait in 3 M steps
@@ -43,7 +43,6 @@ import mujoco
 import numpy as np
 import torch
 
-from common.policy import GaussianPolicy
 from learner import checkpoint
 
 
@@ -54,6 +53,16 @@ def _positive_int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
     if value < 1:
         raise argparse.ArgumentTypeError(f"{value} must be at least 1")
+    return value
+
+
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if not 0 <= value < 2**32:
+        raise argparse.ArgumentTypeError(f"{value} must be from 0 to 2^32-1")
     return value
 
 
@@ -101,30 +110,40 @@ class TorqueLabeler:
         return np.clip(total / (self.substeps * self.efforts), -1.0, 1.0)
 
 
-def distill(teacher_dir: str | Path, out: str | Path, rounds: int = 6, steps_per_round: int = 20_000,
+def load_teacher(teacher_dir: str | Path):
+    """The PD executor checkpoint at `teacher_dir` (`eval_core.Loaded`); ValueError naming it if
+    it is missing, unreadable, or not a PD executor."""
+    from learner.evaluation import eval_core
+
+    try:
+        loaded = eval_core.load(teacher_dir)
+    except SystemExit as exc:  # eval_core's one-line message for a missing or unreadable checkpoint
+        raise ValueError(f"--teacher {teacher_dir}: {str(exc.code).replace('--checkpoint ', '')}") from None
+    task = loaded.cfg.task
+    if task.name != "executor" or task.executor.actuation != "pd":
+        raise ValueError(f"--teacher {teacher_dir}: a PD executor checkpoint is needed (task {task.name!r}, "
+                         f"actuation {task.executor.actuation if task.name == 'executor' else None!r})")
+    return loaded
+
+
+def distill(loaded, out: str | Path, rounds: int = 6, steps_per_round: int = 20_000,
             epochs: int = 20, lr: float = 1e-3, seed: int = 0, log=print) -> Path:
-    """DAgger from a PD executor checkpoint into a torque executor checkpoint at `out`
-    (`out/ckpt/<iteration>/state.pt`); returns the checkpoint directory."""
+    """DAgger from the PD executor checkpoint `loaded` (`load_teacher`) into a torque executor
+    checkpoint at `out` (`out/ckpt/<iteration>/state.pt`); returns the checkpoint directory."""
+    from common.policy import anneal_log_std
     from common.tasks.executor import ExecutorEnv
     from learner.evaluation import eval_core
     from learner.learner import Learner
 
-    loaded = eval_core.load(teacher_dir)
     cfg = loaded.cfg
-    if cfg.task.name != "executor" or cfg.task.executor.actuation != "pd":
-        raise ValueError(f"--teacher {teacher_dir}: a PD executor checkpoint is needed (task {cfg.task.name!r}, "
-                         f"actuation {getattr(cfg.task.executor, 'actuation', None)!r})")
-    torch.manual_seed(seed)
-    rng = np.random.default_rng(seed)
     student_task = dataclasses.replace(cfg.task, executor=dataclasses.replace(cfg.task.executor, actuation="torque"))
-    student_cfg = dataclasses.replace(cfg, task=student_task, name=Path(out).name)
+    student_cfg = dataclasses.replace(cfg, task=student_task, name=Path(out).name, seed=seed, resume="auto")
+    rng = np.random.default_rng(seed)
     env = ExecutorEnv(student_task, seed=seed)
     pd_model = ExecutorEnv(cfg.task, seed=seed).model
     labeler = TorqueLabeler(env, pd_model, cfg.task.executor.pd_action_scale)
-
-    teacher = GaussianPolicy(env.obs_dim, env.act_dim, cfg.policy)
-    teacher.load_state_dict(loaded.state["policy"])
-    learner = Learner(student_cfg)
+    teacher = eval_core.make_policy(loaded, env.obs_dim, env.act_dim)
+    learner = Learner(student_cfg)  # seeds torch with `seed`: the student's initial weights
     student = learner.policy
     student.normalizer.load_state_dict(teacher.normalizer.state_dict())
     # NOTE: checkpoints from before the value net's return statistics have none: keep (0, 1), as
@@ -136,9 +155,9 @@ def distill(teacher_dir: str | Path, out: str | Path, rounds: int = 6, steps_per
     obs_all: list[np.ndarray] = []
     labels_all: list[np.ndarray] = []
     obs, _ = env.reset(int(rng.integers(2**31)), env.space.default_array)
-    steps = 0
+    steps, length, ret = 0, 0, 0.0
     for r in range(rounds):
-        t0, lengths, returns, length, ret = time.monotonic(), [], [], 0, 0.0
+        t0, lengths, returns = time.monotonic(), [], []
         obs_r, lab_r = np.zeros((steps_per_round, env.obs_dim), np.float32), np.zeros((steps_per_round, env.act_dim), np.float32)
         for i in range(steps_per_round):
             with torch.no_grad():
@@ -179,6 +198,9 @@ def distill(teacher_dir: str | Path, out: str | Path, rounds: int = 6, steps_per
     learner.env_steps = int(loaded.state.get("env_steps", 0)) + steps
     learner.iteration = int(loaded.state.get("iteration", 0))
     learner.policy_version = learner.iteration
+    learner.episodes = int(loaded.state.get("episodes", 0))
+    learner.train_seconds = float(loaded.state.get("train_seconds", float("nan")))
+    anneal_log_std(student, student_cfg.policy, learner.env_steps)  # where the variance controller stands
     return checkpoint.save(Path(out) / "ckpt", learner.iteration, learner.state_dict(), keep=1)
 
 
@@ -191,15 +213,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--steps", type=_positive_int, default=20_000, help="control steps collected per round")
     p.add_argument("--epochs", type=_positive_int, default=20, help="passes over all rounds' states after each round")
     p.add_argument("--lr", type=_positive_float, default=1e-3, help="Adam step size of the fit")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=_seed, default=0, help="seed of the student's weights, resets and fit (0 to 2^32-1)")
     args = p.parse_args(argv)
     out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        p.error(f"--out {out} is a file; give a new directory")
     if checkpoint.list_checkpoints(out / "ckpt"):
         p.error(f"--out {out} already holds checkpoints; give a new directory")
     try:
-        path = distill(args.teacher, out, args.rounds, args.steps, args.epochs, args.lr, args.seed)
+        loaded = load_teacher(args.teacher)
     except ValueError as exc:
         p.error(str(exc))
+    path = distill(loaded, out, args.rounds, args.steps, args.epochs, args.lr, args.seed)
     print(f"[distill] wrote {path}; continue with: python -m learner.main --preset executor --name <name> --resume {path}")
     return 0
 
