@@ -44,36 +44,7 @@ import numpy as np
 import torch
 
 from learner import checkpoint
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{value} must be at least 1")
-    return value
-
-
-def _seed(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
-    if not 0 <= value < 2**32:
-        raise argparse.ArgumentTypeError(f"{value} must be from 0 to 2^32-1")
-    return value
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (np.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"{value} must be a finite number > 0")
-    return value
+from learner.evaluation import cli_args
 
 
 class TorqueLabeler:
@@ -209,11 +180,11 @@ def main(argv: list[str] | None = None) -> int:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--teacher", required=True, help="a PD executor checkpoint (run dir, ckpt dir or learner/pretrained/<name>)")
     p.add_argument("--out", required=True, help="run directory to write (its ckpt/<iteration>/state.pt)")
-    p.add_argument("--rounds", type=_positive_int, default=6, help="DAgger rounds (the first acts with the labels)")
-    p.add_argument("--steps", type=_positive_int, default=20_000, help="control steps collected per round")
-    p.add_argument("--epochs", type=_positive_int, default=20, help="passes over all rounds' states after each round")
-    p.add_argument("--lr", type=_positive_float, default=1e-3, help="Adam step size of the fit")
-    p.add_argument("--seed", type=_seed, default=0, help="seed of the student's weights, resets and fit (0 to 2^32-1)")
+    p.add_argument("--rounds", type=cli_args.positive_int, default=6, help="DAgger rounds (the first acts with the labels)")
+    p.add_argument("--steps", type=cli_args.positive_int, default=20_000, help="control steps collected per round")
+    p.add_argument("--epochs", type=cli_args.positive_int, default=20, help="passes over all rounds' states after each round")
+    p.add_argument("--lr", type=cli_args.positive_float, default=1e-3, help="Adam step size of the fit")
+    p.add_argument("--seed", type=cli_args.seed, default=0, help="seed of the student's weights, resets and fit (0 to 2^32-1)")
     args = p.parse_args(argv)
     out = Path(args.out)
     if out.exists() and not out.is_dir():

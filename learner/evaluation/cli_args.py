@@ -39,10 +39,13 @@ def positive_ints(text: str) -> list[int]:
 
 
 def seed(text: str) -> int:
-    """A random seed: an integer >= 0 (numpy's generators refuse negative seeds)."""
+    """A random seed: an integer >= 0 (numpy's generators refuse negative seeds) and below 2^32
+    (torch's manual_seed overflows past 2^64)."""
     value = _number(text, int, "an integer >= 0")
     if value < 0:
         raise argparse.ArgumentTypeError(f"{text!r} must be an integer >= 0")
+    if value >= 2**32:
+        raise argparse.ArgumentTypeError(f"{text!r} must be an integer >= 0 and below 2^32")
     return value
 
 
