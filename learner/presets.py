@@ -5,6 +5,8 @@ Each preset is a complete `RunConfig`; command-line options override its fields.
 
 from __future__ import annotations
 
+import dataclasses
+
 from actors.config import ActorConfig
 from learner.config import RunConfig
 from learner.ppo import PPOConfig
@@ -124,7 +126,7 @@ for _char, (_param, _plot, _swim, _text) in _SHAPE_TASKS.items():
         PRESETS[_cfg.name] = (f"{_text}; {_vtext}", _cfg)
 PRESETS["lower_biped-tiny"] = (
     "two iterations of lower_biped for smoke tests",
-    __import__("dataclasses").replace(
+    dataclasses.replace(
         PRESETS["lower_biped"][1], name="lower_biped-tiny", total_env_steps=2 * 1024, steps_per_iteration=1024,
         checkpoint_every=1, vm_plot_every=1, actors=ActorConfig(num_actors=1, envs_per_actor=4, unroll_length=32),
         sampler=SamplerConfig(k=ADAPTIVE_K, p_mcmc=1, n_mcmc=100, vm_fit_steps=10, plot_params=("global_z", "global_x")),
@@ -209,10 +211,10 @@ for _variant, _vtext in {"": "torque, per-term termination, balancer, reactive i
     PRESETS[_cfg.name] = (f"UniCon motion executor on the DeepMimic humanoid over its clip library; {_vtext}", _cfg)
 PRESETS["executor-tiny"] = (
     "two iterations of the executor for smoke tests",
-    __import__("dataclasses").replace(
+    dataclasses.replace(
         PRESETS["executor"][1], name="executor-tiny", total_env_steps=2 * 1024, steps_per_iteration=1024, checkpoint_every=1,
-        policy=__import__("dataclasses").replace(PRESETS["executor"][1].policy, hidden=(64, 64)),
-        ppo=__import__("dataclasses").replace(PRESETS["executor"][1].ppo, minibatch=256),
+        policy=dataclasses.replace(PRESETS["executor"][1].policy, hidden=(64, 64)),
+        ppo=dataclasses.replace(PRESETS["executor"][1].ppo, minibatch=256),
         actors=ActorConfig(num_actors=1, envs_per_actor=4, unroll_length=32),
     ),
 )

@@ -13,9 +13,10 @@ declare -A ARGS=(
   [fish]="--preset fish --mode serial"
   [manta]="--preset manta --mode serial"
   [executor-torque]="--preset executor --mode serial"
+  [executor-pd-cont]="--preset executor-pd --mode serial"
 )
 names=("$@")
-[ ${#names[@]} -eq 0 ] && names=(qabl-adaptive qabl-uniform qabl-nonorm qabl-fixedshape fish manta executor-torque)
+[ ${#names[@]} -eq 0 ] && names=(qabl-adaptive qabl-uniform qabl-nonorm qabl-fixedshape fish manta executor-torque executor-pd-cont)
 mkdir -p runs
 for name in "${names[@]}"; do
   [ -n "${ARGS[$name]+x}" ] || { echo "resume.sh: unknown run '$name'; choose one of ${!ARGS[*]}" >&2; exit 2; }
