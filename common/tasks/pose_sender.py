@@ -156,7 +156,7 @@ def _port(text: str) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="morphmimic send-poses", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("source", help="a humanoid clip id (morphmimic motion list) or a keypoint file .npy/.npz [T, J, 3]")
+    p.add_argument("source", help="a humanoid clip id (`morphmimic motion check --all` prints them) or a keypoint file .npy/.npz [T, J, 3]")
     p.add_argument("--host", default="127.0.0.1", help="where the video scheduler listens")
     p.add_argument("--port", type=_port, default=DEFAULT_PORT)
     p.add_argument("--fps", type=_positive, default=None, help="packets per second (default: 60, or the file's fps)")
