@@ -30,7 +30,7 @@ from common.tasks.registry import make_env
 from learner import data_parallel
 from learner.bench.learner_update import random_batch
 from learner.ppo import PPO, Batch
-from learner.evaluation.cli_args import positive_float, positive_int, positive_ints
+from learner.evaluation.cli_args import positive_int, positive_ints
 from learner.presets import PRESETS
 
 

@@ -30,7 +30,7 @@ from pathlib import Path
 
 from learner.bench.throughput import end_to_end
 from learner.config import LearnerConfig, RunConfig
-from learner.evaluation.cli_args import positive_float, positive_int, positive_ints
+from learner.evaluation.cli_args import positive_int, positive_ints
 from learner.presets import PRESETS
 
 

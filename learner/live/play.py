@@ -31,7 +31,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 
 from learner.evaluation import cli_args
 from learner.live.session import AGENTS, LiveSession

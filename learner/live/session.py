@@ -23,7 +23,6 @@ import dataclasses
 import math
 from typing import Any
 
-import mujoco
 import numpy as np
 import torch
 

@@ -10,13 +10,12 @@ declare -A ARGS=(
   [qabl-uniform]="--preset quadruped-uniform --ppo.gamma 0.99 --total-env-steps 7300000 --mode serial"
   [qabl-nonorm]="--preset quadruped-nonorm --ppo.gamma 0.99 --total-env-steps 7300000 --mode serial"
   [qabl-fixedshape]="--preset quadruped-fixedshape --ppo.gamma 0.99 --total-env-steps 7300000 --mode serial"
-  [fish]="--preset fish --mode serial"
   [manta]="--preset manta --mode serial"
   [executor-torque]="--preset executor --mode serial"
   [executor-pd-cont]="--preset executor-pd --mode serial"
 )
 names=("$@")
-[ ${#names[@]} -eq 0 ] && names=(qabl-adaptive qabl-uniform qabl-nonorm qabl-fixedshape fish manta executor-torque executor-pd-cont)
+[ ${#names[@]} -eq 0 ] && names=(qabl-adaptive qabl-uniform qabl-nonorm qabl-fixedshape manta executor-torque executor-pd-cont)
 mkdir -p runs
 for name in "${names[@]}"; do
   [ -n "${ARGS[$name]+x}" ] || { echo "resume.sh: unknown run '$name'; choose one of ${!ARGS[*]}" >&2; exit 2; }

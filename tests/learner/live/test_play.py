@@ -3,6 +3,8 @@ H.264 files read back with imageio-ffmpeg."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -55,7 +57,7 @@ def test_a_slider_morph_changes_the_measured_height_and_keeps_running() -> None:
     for _ in range(5):
         s.step()
     before = s.body_height_m()
-    low, high = s.shape_box
+    _low, high = s.shape_box
     i = s.shape_names.index("global_z")
     s.set_shape({"global_z": float(high[i])})
     assert s.body_height_m() > before + 0.05
@@ -114,8 +116,7 @@ def test_executor_session_is_heavier_and_takes_projectiles() -> None:
         s.set_shape({"height": 1.0})
 
 
-@pytest.mark.parametrize("name", sorted(p.name for p in __import__("pathlib").Path("learner/pretrained").iterdir()
-                                        if (p / "state.pt").is_file()))
+@pytest.mark.parametrize("name", sorted(p.name for p in Path("learner/pretrained").iterdir() if (p / "state.pt").is_file()))
 def test_every_shipped_checkpoint_plays_to_a_video(name: str, tmp_path) -> None:
     import imageio.v3 as iio
 
