@@ -22,7 +22,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "character": ("common.characters.cli", "build a character from a preset and shape values; write MJCF and PNG"),
     "motion": ("common.motion.cli", "import, view and check motion clips"),
     "send-poses": ("common.tasks.pose_sender", "send a clip's joint positions over UDP to the video scheduler (morphmimic play --scheduler video)"),
-    "bench": ("learner.bench.cli", "benchmarks: throughput, learner, scaling, capacity, replicas, characters, episodes, sampler, soak, curve"),
+    "bench": ("learner.bench.cli", "benchmarks: throughput, learner, scaling, capacity, replicas, characters, episodes, env-steps, sampler, soak, curve"),
 }
 
 

@@ -76,12 +76,12 @@ class Env(Protocol):
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]: ...
 
 
-_DIVERGENCE_WARNINGS = (
-    mujoco.mjtWarning.mjWARN_BADQACC,
-    mujoco.mjtWarning.mjWARN_BADQVEL,
-    mujoco.mjtWarning.mjWARN_BADQPOS,
-    mujoco.mjtWarning.mjWARN_BADCTRL,
-)
+_DIVERGENCE_WARNINGS = [
+    int(mujoco.mjtWarning.mjWARN_BADQACC),
+    int(mujoco.mjtWarning.mjWARN_BADQVEL),
+    int(mujoco.mjtWarning.mjWARN_BADQPOS),
+    int(mujoco.mjtWarning.mjWARN_BADCTRL),
+]
 
 
 def step_physics(model: mujoco.MjModel, data: mujoco.MjData, substeps: int) -> bool:
@@ -90,7 +90,8 @@ def step_physics(model: mujoco.MjModel, data: mujoco.MjData, substeps: int) -> b
     NOTE: MuJoCo resets `MjData` silently when the state blows up; the only trace is the
     warning counters, so they are compared before and after (DESIGN.md "Environments").
     """
-    before = sum(int(data.warning[w].number) for w in _DIVERGENCE_WARNINGS)
+    # NOTE: the counters are read as one array (`warning.number`), not one wrapper per warning.
+    before = int(data.warning.number[_DIVERGENCE_WARNINGS].sum())
     mujoco.mj_step(model, data, nstep=substeps)
-    after = sum(int(data.warning[w].number) for w in _DIVERGENCE_WARNINGS)
+    after = int(data.warning.number[_DIVERGENCE_WARNINGS].sum())
     return after != before or not np.isfinite(data.qpos).all()

@@ -182,6 +182,7 @@ class ExecutorEnv:
         self.character = ch
         self.ref_model = ch.model
         self.ref_data = mujoco.MjData(self.ref_model)
+        self._target_kin_memo: dict[bytes, BodyKin] = {}
         spec = ch.spec.copy()
         if self.ex.projectile:
             for i in range(PROJECTILES):
@@ -254,12 +255,21 @@ class ExecutorEnv:
     # ---- state ----
 
     def _target_kin(self, frame: TargetFrame) -> BodyKin:
-        d = self.ref_data
-        d.qpos[:], d.qvel[:] = frame.qpos, frame.qvel
-        mujoco.mj_kinematics(self.ref_model, d)
-        mujoco.mj_comPos(self.ref_model, d)
-        mujoco.mj_comVel(self.ref_model, d)
-        return read_kinematics(self.ref_model, d, self.bodies)
+        # NOTE: memoized on the frame's exact bytes: the frame observed as "next" in one step is
+        # the tracked one in the next step, so without it every frame's kinematics ran twice.
+        key = frame.qpos.tobytes() + frame.qvel.tobytes()
+        kin = self._target_kin_memo.get(key)
+        if kin is None:
+            d = self.ref_data
+            d.qpos[:], d.qvel[:] = frame.qpos, frame.qvel
+            mujoco.mj_kinematics(self.ref_model, d)
+            mujoco.mj_comPos(self.ref_model, d)
+            mujoco.mj_comVel(self.ref_model, d)
+            kin = read_kinematics(self.ref_model, d, self.bodies)
+            if len(self._target_kin_memo) > 2 * (self.ex.tau + 1):
+                self._target_kin_memo.clear()
+            self._target_kin_memo[key] = kin
+        return kin
 
     def _actual_kin(self) -> BodyKin:
         # NOTE: after mj_step the body poses are those before the last integration; recompute

@@ -1,0 +1,41 @@
+"""`morphmimic bench env-steps` times this tree against a git revision and says whether both
+compute the same trajectories; the environment's hand-written cross product is `np.cross` bit
+for bit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from common.tasks.executor_obs import _cross
+from learner.bench import env_steps
+
+
+def test_cross_is_numpys_bit_for_bit() -> None:
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(size=(50, 3)) * 10.0 ** rng.integers(-8, 8, (50, 1)), rng.normal(size=(50, 3))
+    assert np.array_equal(_cross(a, b), np.cross(a, b))
+
+
+def test_against_head_finds_the_same_trajectory(capsys: pytest.CaptureFixture[str]) -> None:
+    assert env_steps.main(["--against", "HEAD", "--presets", "executor", "--steps", "40", "--rounds", "1"]) == 0
+    row = [line for line in capsys.readouterr().out.splitlines() if line.startswith("executor ")]
+    assert len(row) == 1 and row[0].split()[-1] == "yes", row
+
+
+def test_a_trajectory_digest_changes_with_the_actions() -> None:
+    first = env_steps.time_presets(["executor"], 20, seed=0)["executor"]["digest"]
+    assert env_steps.time_presets(["executor"], 20, seed=0)["executor"]["digest"] == first
+    assert env_steps.time_presets(["executor"], 20, seed=1)["executor"]["digest"] != first
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["--against", "no-such-revision"], "is not a commit"),
+    (["--against", "HEAD", "--presets", "nope"], "unknown nope"),
+    (["--against", "HEAD", "--steps", "0"], "--steps"),
+])
+def test_bad_arguments_are_named(argv: list[str], says: str, capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exit_info:
+        env_steps.main(argv)
+    assert exit_info.value.code == 2
+    assert says in capsys.readouterr().err
