@@ -71,16 +71,21 @@ class JointLayout:
         self.hinge_qpos = np.array(hinge, dtype=np.int64)
         self.order = order
         self.nu = 3 * len(ball) + len(hinge)
+        # Where each entry of [ball rotation vectors (3 per ball) ..., hinge angles ...] goes in
+        # actuator order: `to_vector` gathers with it once instead of concatenating per joint.
+        position = {("ball", i): [3 * i, 3 * i + 1, 3 * i + 2] for kind, i in order if kind == "ball"}
+        position |= {("hinge", i): [3 * len(ball) + i] for kind, i in order if kind == "hinge"}
+        self._gather = np.array([p for key in order for p in position[key]], dtype=np.int64)
         if self.nu != model.nu or model.nv - 6 != self.nu:
             raise ValueError(f"joint layout has {self.nu} DOF but the model has nu={model.nu}, nv-6={model.nv - 6}: "
                              "the shape tasks need one PD actuator per DOF in joint order")
 
     def to_vector(self, qpos: np.ndarray) -> np.ndarray:
         """`[nq]` (or `[N, nq]`) qpos -> `[nu]` (or `[N, nu]`) joint vector in actuator order."""
-        rv = quat_to_rotvec(qpos[..., self.ball_qpos]) if len(self.ball_qpos) else None
-        hg = qpos[..., self.hinge_qpos]
-        parts = [rv[..., i, :] if kind == "ball" else hg[..., i : i + 1] for kind, i in self.order]
-        return np.concatenate(parts, axis=-1)
+        qpos = np.asarray(qpos)
+        rv = quat_to_rotvec(qpos[..., self.ball_qpos]) if len(self.ball_qpos) else np.zeros((*qpos.shape[:-1], 0, 3))
+        flat = np.concatenate([rv.reshape(*rv.shape[:-2], -1), qpos[..., self.hinge_qpos]], axis=-1)
+        return flat[..., self._gather]
 
 
 def root_frame_features(qpos: np.ndarray, qvel: np.ndarray, frame: np.ndarray) -> np.ndarray:
