@@ -267,7 +267,7 @@ class ExecutorEnv:
             mujoco.mj_comVel(self.ref_model, d)
             kin = read_kinematics(self.ref_model, d, self.bodies)
             if len(self._target_kin_memo) > 2 * (self.ex.tau + 1):
-                self._target_kin_memo.clear()
+                self._target_kin_memo.pop(next(iter(self._target_kin_memo)))  # the oldest
             self._target_kin_memo[key] = kin
         return kin
 

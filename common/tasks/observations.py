@@ -83,8 +83,9 @@ class JointLayout:
     def to_vector(self, qpos: np.ndarray) -> np.ndarray:
         """`[nq]` (or `[N, nq]`) qpos -> `[nu]` (or `[N, nu]`) joint vector in actuator order."""
         qpos = np.asarray(qpos)
-        rv = quat_to_rotvec(qpos[..., self.ball_qpos]) if len(self.ball_qpos) else np.zeros((*qpos.shape[:-1], 0, 3))
-        flat = np.concatenate([rv.reshape(*rv.shape[:-2], -1), qpos[..., self.hinge_qpos]], axis=-1)
+        rv = (quat_to_rotvec(qpos[..., self.ball_qpos]) if len(self.ball_qpos)
+              else np.zeros((*qpos.shape[:-1], 0, 3), dtype=qpos.dtype))
+        flat = np.concatenate([rv.reshape(*rv.shape[:-2], 3 * len(self.ball_qpos)), qpos[..., self.hinge_qpos]], axis=-1)
         return flat[..., self._gather]
 
 

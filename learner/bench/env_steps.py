@@ -8,8 +8,8 @@ alike) that, per preset, resets on the preset's base shape, steps `--steps` cont
 seeded random actions (restarting episodes that end) and reports milliseconds per step and a
 digest of every observation, reward and end flag. Reported per preset: the median over rounds
 for each tree, their ratio (other / this: above 1 means this tree is faster) and whether the
-digests agree (the trajectories are bit for bit the same). Nothing listens; nothing is written
-outside the temporary worktree.
+digests agree (the trajectories are bit for bit the same). Nothing listens; besides the
+temporary worktree, git records it under `.git/worktrees` until it is removed (and pruned).
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import os
 import statistics
 import subprocess
 import sys
@@ -51,7 +52,7 @@ def time_presets(presets: list[str], steps: int, seed: int) -> dict[str, dict[st
             start = time.perf_counter()
             obs, reward, terminated, truncated, _ = env.step(action)
             elapsed += time.perf_counter() - start
-            digest.update(np.asarray(obs).tobytes() + np.float64(reward).tobytes() + bytes([terminated, truncated]))
+            digest.update(np.asarray(obs).tobytes() + np.float64(reward).tobytes() + bytes([bool(terminated), bool(truncated)]))
             if terminated or truncated:
                 obs, _ = env.reset(None, params)
                 digest.update(np.asarray(obs).tobytes())
@@ -60,18 +61,29 @@ def time_presets(presets: list[str], steps: int, seed: int) -> dict[str, dict[st
 
 
 def _run_tree(tree: Path, presets: list[str], steps: int, seed: int) -> dict[str, dict[str, object]]:
-    code = ("import json, sys; from learner.bench.env_steps import time_presets; "
-            f"print(json.dumps(time_presets({presets!r}, {steps}, {seed})))")
-    if not (tree / "learner" / "bench" / "env_steps.py").is_file():
-        # NOTE: a revision older than this benchmark: run this file's function against its modules.
-        here = str(Path(__file__))
-        code = (f"import json, sys; sys.path.insert(0, {str(tree)!r}); g = {{'__file__': {here!r}, '__name__': 'env_steps'}}; "
-                f"exec(compile(open({here!r}).read(), {here!r}, 'exec'), g); "
-                f"print(json.dumps(g['time_presets']({presets!r}, {steps}, {seed})))")
-    proc = subprocess.run([sys.executable, "-c", code], cwd=tree, capture_output=True, text=True, check=False)
+    """`time_presets` in a subprocess that imports `tree`'s modules: the tree goes first on the
+    path explicitly (an editable install's import hook would otherwise serve this checkout's
+    modules, e.g. under PYTHONSAFEPATH), this file's function runs against them (so revisions
+    older than this benchmark can be timed), and the modules' location is checked."""
+    here = str(Path(__file__))
+    code = (f"import json, sys; sys.path.insert(0, {str(tree)!r}); g = {{'__file__': {here!r}, '__name__': 'env_steps'}}; "
+            f"exec(compile(open({here!r}).read(), {here!r}, 'exec'), g); import common; "
+            f"print(json.dumps({{'from': common.__file__, 'presets': g['time_presets']({presets!r}, {steps}, {seed})}}))")
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONSAFEPATH"}
+    proc = subprocess.run([sys.executable, "-c", code], cwd=tree, env=env, capture_output=True, text=True, check=False)
     if proc.returncode != 0:
         raise RuntimeError(f"timing in {tree} failed:\n{proc.stderr[-2000:]}")
-    return json.loads(proc.stdout.strip().splitlines()[-1])
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    if not Path(out["from"]).resolve().is_relative_to(tree.resolve()):
+        raise RuntimeError(f"the timing meant for {tree} imported {out['from']}: the comparison would not compare two trees")
+    return out["presets"]
+
+
+def _git(*args: str) -> subprocess.CompletedProcess:
+    try:
+        return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True, check=False)
+    except FileNotFoundError as exc:
+        raise SystemExit("morphmimic bench env-steps: git is not installed; it checks out the other revision") from exc
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -89,14 +101,16 @@ def main(argv: list[str] | None = None) -> int:
     unknown = [p for p in presets if p not in PRESETS]
     if unknown:
         parser.error(f"--presets: unknown {', '.join(unknown)}; choose from {', '.join(sorted(PRESETS))}")
-    rev = subprocess.run(["git", "rev-parse", "--verify", f"{args.against}^{{commit}}"], cwd=ROOT,
-                         capture_output=True, text=True, check=False)
+    rev = _git("rev-parse", "--verify", f"{args.against}^{{commit}}")
     if rev.returncode != 0:
-        parser.error(f"--against {args.against!r} is not a commit of this repository")
+        shallow = _git("rev-parse", "--is-shallow-repository").stdout.strip() == "true"
+        parser.error(f"--against {args.against!r} is not a commit of this repository ({rev.stderr.strip() or 'git failed'})"
+                     + ("; this clone is shallow: `git fetch --deepen N` or `--unshallow` brings older commits" if shallow else ""))
     with tempfile.TemporaryDirectory(prefix="env-steps-") as tmp:
         other = Path(tmp) / "tree"
-        subprocess.run(["git", "worktree", "add", "--detach", str(other), rev.stdout.strip()], cwd=ROOT,
-                       capture_output=True, check=True)
+        added = _git("worktree", "add", "--detach", str(other), rev.stdout.strip())
+        if added.returncode != 0:
+            raise SystemExit(f"morphmimic bench env-steps: git worktree add failed: {added.stderr.strip()}")
         try:
             times: dict[str, dict[str, list[float]]] = {p: {"this": [], "other": []} for p in presets}
             digests: dict[str, dict[str, set[str]]] = {p: {"this": set(), "other": set()} for p in presets}
@@ -108,7 +122,8 @@ def main(argv: list[str] | None = None) -> int:
                         digests[name][label].add(str(m["digest"]))
                 print(f"round {r + 1}/{args.rounds} done", flush=True)
         finally:
-            subprocess.run(["git", "worktree", "remove", "--force", str(other)], cwd=ROOT, capture_output=True, check=False)
+            _git("worktree", "remove", "--force", str(other))
+            _git("worktree", "prune")
     print(f"control step, this tree against {args.against} ({rev.stdout.strip()[:10]}); {args.steps} steps x {args.rounds} rounds")
     print(f"{'preset':<14} {'this ms':>8} {'other ms':>9} {'other/this':>10}  same trajectory")
     for name in presets:
