@@ -23,6 +23,7 @@ the reference's course, sideways or vertically) terminates; the horizon (`episod
 from __future__ import annotations
 
 import collections
+import dataclasses
 import math
 
 import mujoco
@@ -109,6 +110,10 @@ class ImitateEnv:
         self.v0 = references.cycle_velocity(base_clip)
         self.tau_scale = self.base.model.actuator_forcerange[:, 1].copy()
         self._base_legs = self._legs(self.base)
+        self._stroke_model = None
+        if self.base.is_swimmer and cfg.imitate.swimmer_speed == "stroke_fit":
+            from common.tasks.stroke_fit import StrokeModel
+            self._stroke_model = StrokeModel.load(self.preset, self.space.names[: self.n_shape])
         self._cache: collections.OrderedDict[bytes, tuple] = collections.OrderedDict()
         self._factory = CharacterFactory(self.preset, cfg.body.parameterization, timestep_s=self.timestep_s)
         self.dt = 1.0 / cfg.control_hz
@@ -121,6 +126,14 @@ class ImitateEnv:
         """Leg lengths [n] m for the normalization; a swimmer's body length stands in."""
         return ch.leg_lengths_m if len(ch.base.legs) else np.array([ch.length_m])
 
+    def _normalization(self, ch, shape: np.ndarray) -> rewards.Normalization:
+        """Won & Lee's reward normalization for this body, with a swimmer's fitted stroke speed
+        under `swimmer_speed = "stroke_fit"` (`common.tasks.stroke_fit`)."""
+        norm = rewards.Normalization.from_legs(self._legs(ch), self._base_legs, ch.mass_kg, self.base.mass_kg)
+        if ch.is_swimmer and self._stroke_model is not None:
+            norm = dataclasses.replace(norm, speed_factor=self._stroke_model.ratio(shape))
+        return norm
+
     def _load(self, params: np.ndarray) -> None:
         """Build (or fetch from the per-env cache) the character and reference for a shape."""
         shape = np.asarray(params[: self.n_shape], dtype=np.float64)
@@ -131,7 +144,7 @@ class ImitateEnv:
             ch = self._factory.make(shape)
             self._gains(ch)
             motion = references.play(ch, self.clip_id, self.timestep_s, self.retarget)
-            norm = rewards.Normalization.from_legs(self._legs(ch), self._base_legs, ch.mass_kg, self.base.mass_kg)
+            norm = self._normalization(ch, shape)
             self._cache[key] = (ch, motion, norm)
             while len(self._cache) > max(1, self.cfg.imitate.character_cache):
                 self._cache.popitem(last=False)
@@ -265,9 +278,10 @@ class ImitateEnv:
 
     def target_velocity(self) -> np.ndarray:
         """v_target `[2]` m/s in the world: the clip's cycle velocity, scaled by speed, by the
-        leg-length rule with normalization on (rewards.Normalization.target_speed)."""
+        leg-length rule (times a swimmer's fitted stroke speed under `swimmer_speed = "stroke_fit"`)
+        with normalization on (rewards.Normalization.target_speed)."""
         v = self.rot[:2, :2] @ self.v0 * self.speed
-        return v * (self.norm.leg_ratio * self.norm.asym if self.cfg.imitate.reward_normalization else 1.0)
+        return v * (self.norm.target_speed(1.0) if self.cfg.imitate.reward_normalization else 1.0)
 
     def _body_frame(self) -> tuple[np.ndarray, np.ndarray]:
         """(heading frame `[3, 3]` of the root, end effectors relative to the root in it `[E, 3]`)
@@ -418,7 +432,7 @@ class ImitateEnv:
         ch, self.data = morph(self.character, shape, self.data)
         self._gains(ch)
         motion = references.play(ch, self.clip_id, self.timestep_s, self.retarget)
-        norm = rewards.Normalization.from_legs(self._legs(ch), self._base_legs, ch.mass_kg, self.base.mass_kg)
+        norm = self._normalization(ch, shape)
         self._set_character(ch, motion, norm)
         new_root = self._ref_qpos(self.k * self.dt)[0][0:3]
         self.ref_offset = self.ref_offset + old_root - new_root

@@ -11,6 +11,7 @@ from common.config_limits import FINITE, Limit, above, at_least, between, check_
 from common.motion.root_height import ROOT_HEIGHT_RULES
 
 TASK_PARAMS = ("speed", "heading")
+SWIMMER_SPEED_RULES = ("length", "stroke_fit")
 """Task parameters a shape task can sample per episode beside the shape."""
 
 
@@ -58,6 +59,12 @@ class ImitateConfig:
     """Swimmers: terminate (as a fall) when the root is this many body lengths off the
     reference's course (sideways or vertically; lagging or leading along it is not a fall, see
     `ImitateEnv.off_course_m`); 0 turns it off."""
+    swimmer_speed: str = "length"
+    """Swimmers, with reward normalization: the target speed of a shape. "length": the clip's
+    speed times the body length over the base's (the leg-length rule of METHOD.md A with the
+    length for the legs); "stroke_fit": that times what the shape's own tracked stroke reaches
+    over it, from the fitted model `common/data/stroke_speed/<preset>.json`
+    (`common.tasks.stroke_fit`; a deviation from the paper)."""
     reward_weights: tuple[float, ...] = ()
     """W1..w6 (empty: the character's row of METHOD.md A's table)."""
     reward_sensitivities: tuple[float, ...] = (0.02, 0.5, 0.2, 0.2, 0.05, 0.1)
@@ -84,6 +91,8 @@ class ImitateConfig:
         bad = [p for p in self.task_params if p not in TASK_PARAMS]
         if bad:
             raise ValueError(f"--task.imitate.task-params = {self.task_params}: give any of {', '.join(TASK_PARAMS)}")
+        if self.swimmer_speed not in SWIMMER_SPEED_RULES:
+            raise ValueError(f"--task.imitate.swimmer-speed = {self.swimmer_speed!r}: give {', '.join(SWIMMER_SPEED_RULES)}")
         if self.retarget_root_height not in ROOT_HEIGHT_RULES:
             raise ValueError(f"--task.imitate.retarget-root-height = {self.retarget_root_height!r}: "
                              f"give {', '.join(ROOT_HEIGHT_RULES)}")

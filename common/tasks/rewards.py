@@ -54,12 +54,14 @@ class Normalization:
     leg_ratio = lbar / lbar0 (mean leg length over the base character's); asym = max(0.5,
     1 - sigma_l / lbar) with sigma_l the standard deviation of the leg lengths; mass_ratio =
     m0 / m (base mass over this body's). Swimmers and legless bodies use their length ratio
-    for leg_ratio and asym = 1.
+    for leg_ratio and asym = 1. speed_factor: a swimmer's fitted stroke speed over that
+    (`common.tasks.stroke_fit`, `--task.imitate.swimmer-speed stroke_fit`), else 1.
     """
 
     leg_ratio: float = 1.0
     asym: float = 1.0
     mass_ratio: float = 1.0
+    speed_factor: float = 1.0
 
     @staticmethod
     def from_legs(leg_lengths_m: np.ndarray, base_leg_lengths_m: np.ndarray, mass_kg: float, base_mass_kg: float) -> "Normalization":
@@ -69,8 +71,9 @@ class Normalization:
         return Normalization(lbar / lbar0, max(0.5, 1.0 - float(legs.std()) / lbar), base_mass_kg / mass_kg)
 
     def target_speed(self, v0_m_s: float) -> float:
-        """v_target = v0 (lbar / lbar0) max(0.5, 1 - sigma_l / lbar) (reconstruction)."""
-        return v0_m_s * self.leg_ratio * self.asym
+        """v_target = v0 (lbar / lbar0) max(0.5, 1 - sigma_l / lbar) (reconstruction), times
+        `speed_factor`."""
+        return v0_m_s * self.leg_ratio * self.asym * self.speed_factor
 
 
 def pose_error(q_ball: np.ndarray, q_ball_ref: np.ndarray, q_hinge: np.ndarray, q_hinge_ref: np.ndarray) -> float:

@@ -51,7 +51,7 @@ def stroke_speed(preset: str, gain_scale: float = CLOSE_TRACKING_GAIN, start_s: 
         raise ValueError(f"stroke speed: window [{start_s}, {stop_s}] s must satisfy 0 <= start, start + 1 <= stop <= 60")
     task = PRESETS[preset][1].task
     task = dataclasses.replace(task, episode_s=stop_s + 1.0, imitate=dataclasses.replace(
-        task.imitate, max_root_deviation=0.0, random_start_phase=False))
+        task.imitate, max_root_deviation=0.0, random_start_phase=False, swimmer_speed="length"))
     env = make_env(task, seed=0)
     env.reset(0, task_space(task).default_array if params is None else params)
     m = env.model

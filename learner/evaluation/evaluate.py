@@ -152,6 +152,8 @@ def swim_rows(s: dict) -> list[str]:
         return []
     return [f"| swim speed error (% of the target speed, after the first {swim_metrics.WARMUP_S:g} s) | "
             f"{s.get('swim_speed_error_pct', float('nan')):.1f} |",
+            *([f"| swim speed error against the length rule's target (%) | {s['swim_speed_error_length_pct']:.1f} |"]
+              if abs(s.get("swim_speed_error_length_pct", 0.0) - s.get("swim_speed_error_pct", 0.0)) > 1e-9 else []),
             f"| swim heading error (degrees) | {s.get('swim_heading_error_deg', float('nan')):.1f} |",
             f"| time upright (root's up axis within {swim_metrics.UPRIGHT_DEG:g} degrees of the reference's), % | "
             f"{s['swim_upright_pct']:.1f} |",

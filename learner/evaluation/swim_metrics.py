@@ -9,7 +9,10 @@ checkpoint) also reports, per episode and averaged over the shapes:
 - **speed error**: | |v| - |v_target| | / |v_target| in %, where v is the centre of mass's
   horizontal velocity averaged over the task reward's 2 s window (`ImitateEnv.com_velocity_avg`)
   and v_target the task's horizontal target velocity (the clip's cycle velocity, scaled for
-  the body); a climb or a dive is not counted here but in the root's distance;
+  the body: by its length, and under `--task.imitate.swimmer-speed stroke_fit` by the speed its
+  own tracked stroke reaches, `common.tasks.stroke_fit`); a climb or a dive is not counted here
+  but in the root's distance. The error against the length rule's target alone is reported
+  beside it (`swim_speed_error_length_pct`), so runs under either rule compare;
 - **heading error**: the angle in degrees between v and v_target in the horizontal plane;
 - **upright %**: the share of control steps on which the root's up axis is within
   `UPRIGHT_DEG` of the reference root's up axis (a fish or manta rolled on its side or belly up
@@ -44,6 +47,7 @@ class SwimTracker:
 
     def __init__(self) -> None:
         self.speed_err: list[float] = []
+        self.speed_err_length: list[float] = []
         self.heading_err: list[float] = []
         self.speed: list[float] = []
         self.target: list[float] = []
@@ -64,6 +68,8 @@ class SwimTracker:
         self.target.append(target)
         if target > 1e-9:
             self.speed_err.append(100.0 * abs(speed - target) / target)
+            length_target = target / env.norm.speed_factor if env.cfg.imitate.reward_normalization else target
+            self.speed_err_length.append(100.0 * abs(speed - length_target) / length_target)
             cross, dot = vt[0] * v[1] - vt[1] * v[0], float(np.dot(v, vt))
             self.heading_err.append(math.degrees(abs(math.atan2(cross, dot))))
 
@@ -72,12 +78,13 @@ class SwimTracker:
         def mean(xs: list[float]) -> float | None:
             return float(np.mean(xs)) if xs else None
 
-        return {"swim_speed_error_pct": mean(self.speed_err), "swim_heading_error_deg": mean(self.heading_err),
+        return {"swim_speed_error_pct": mean(self.speed_err), "swim_speed_error_length_pct": mean(self.speed_err_length),
+                "swim_heading_error_deg": mean(self.heading_err),
                 "swim_upright_pct": 100.0 * self.upright / max(1, self.steps),
                 "swim_speed_m_s": mean(self.speed), "swim_target_speed_m_s": mean(self.target)}
 
 
-SWIM_FIELDS = ("swim_speed_error_pct", "swim_heading_error_deg", "swim_upright_pct", "swim_speed_m_s",
+SWIM_FIELDS = ("swim_speed_error_pct", "swim_speed_error_length_pct", "swim_heading_error_deg", "swim_upright_pct", "swim_speed_m_s",
                "swim_target_speed_m_s")
 
 

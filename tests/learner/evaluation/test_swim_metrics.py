@@ -51,6 +51,7 @@ def test_speed_heading_and_upright_on_hand_made_states() -> None:
     tracker(env, k=101)
     r = tracker.result()
     assert r["swim_speed_error_pct"] == pytest.approx(50.0, abs=1e-6)
+    assert r["swim_speed_error_length_pct"] == r["swim_speed_error_pct"]  # the fish keeps the length rule
     assert r["swim_heading_error_deg"] == pytest.approx(30.0, abs=1e-6)
     assert r["swim_upright_pct"] == pytest.approx(50.0)
     assert r["swim_speed_m_s"] == pytest.approx(1.5 * np.linalg.norm(vt))
