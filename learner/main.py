@@ -83,10 +83,11 @@ def parse(argv: list[str]) -> RunConfig:
     try:
         validate_tree(cfg)
         # The task's own checks (its parameter space, its clips) before any run folder exists.
-        from common.tasks.registry import task_clips, task_space
+        from common.tasks.registry import task_check, task_clips, task_space
 
         task_space(cfg.task)
         task_clips(cfg.task)
+        task_check(cfg.task)
         return cfg
     except ValueError as exc:  # range checks and the task's checks
         print(f"python -m learner.main: invalid configuration: {exc}", file=sys.stderr)

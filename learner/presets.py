@@ -81,7 +81,7 @@ def _shape_preset(character: str, parameterization: str, plot: tuple[str, str], 
     The manta asks each shape for the speed its own tracked stroke reaches (`swimmer_speed =
     "stroke_fit"`, `common.tasks.stroke_fit`): on 200 random shapes that speed is x0.27-x2.56 the
     length-scaled target (32.8% mean error for a perfectly tracked stroke), the fitted model's
-    x0.47-x1.30 (9.3% mean error; held-out rms 16.5% in log). The fish keeps the length rule
+    x0.42-x1.35 on held-out shapes (10.7% mean error). The fish keeps the length rule
     (its shapes' strokes: x0.78-x1.18 on 10 shapes). Variants for the ablations:
     "uniform" (k = 0), "nonorm" (no reward normalization), "fixedshape" (the base shape only)."""
     from common.policy import PolicyConfig

@@ -87,6 +87,14 @@ class ImitateEnv:
         return ParamSpace(tuple(names), tuple(low), tuple(high), tuple(default), tuple(doc))
 
     @staticmethod
+    def check(cfg: TaskConfig) -> None:
+        """A swimmer's stroke-speed model loads and fits the shape parameters when the task asks
+        for it (`common.tasks.stroke_fit.model_for`); ValueError otherwise."""
+        from common.tasks.stroke_fit import model_for
+
+        model_for(cfg)
+
+    @staticmethod
     def clips(cfg: TaskConfig) -> list[tuple[str, str]]:
         preset = character_preset(cfg)
         clip_id = cfg.imitate.clip_id or references.DEFAULT_CLIPS[preset]
@@ -110,10 +118,10 @@ class ImitateEnv:
         self.v0 = references.cycle_velocity(base_clip)
         self.tau_scale = self.base.model.actuator_forcerange[:, 1].copy()
         self._base_legs = self._legs(self.base)
-        self._stroke_model = None
-        if self.base.is_swimmer and cfg.imitate.swimmer_speed == "stroke_fit":
-            from common.tasks.stroke_fit import StrokeModel
-            self._stroke_model = StrokeModel.load(self.preset, self.space.names[: self.n_shape])
+        from common.tasks.stroke_fit import model_for
+
+        self.stroke_model = model_for(cfg)
+        """The swimmer's fitted stroke-speed model under `swimmer_speed = "stroke_fit"`, else None."""
         self._cache: collections.OrderedDict[bytes, tuple] = collections.OrderedDict()
         self._factory = CharacterFactory(self.preset, cfg.body.parameterization, timestep_s=self.timestep_s)
         self.dt = 1.0 / cfg.control_hz
@@ -130,8 +138,8 @@ class ImitateEnv:
         """Won & Lee's reward normalization for this body, with a swimmer's fitted stroke speed
         under `swimmer_speed = "stroke_fit"` (`common.tasks.stroke_fit`)."""
         norm = rewards.Normalization.from_legs(self._legs(ch), self._base_legs, ch.mass_kg, self.base.mass_kg)
-        if ch.is_swimmer and self._stroke_model is not None:
-            norm = dataclasses.replace(norm, speed_factor=self._stroke_model.ratio(shape))
+        if self.stroke_model is not None:
+            norm = dataclasses.replace(norm, speed_factor=self.stroke_model.ratio(shape))
         return norm
 
     def _load(self, params: np.ndarray) -> None:
@@ -358,8 +366,11 @@ class ImitateEnv:
         reference root with the part along the direction of travel removed (sideways and
         vertical). Lagging behind or running ahead is left to the task term and the speed error:
         a body's stroke may be slower or faster than the speed its reference is scaled to (on
-        random fish shapes, 0.78-1.18 times it with the stroke tracked closely; manta 0.64-1.65:
-        `common.tasks.stroke_speed`), and that must not end the episode as a fall."""
+        random fish shapes, 0.78-1.18 times it with the stroke tracked closely, 10 shapes; manta
+        0.27-2.56, 200 shapes: `common.tasks.stroke_fit`), and that must not end the episode as
+        a fall. The reference's root moves at the length-scaled speed even when the target speed
+        is the fitted one (`swimmer_speed = "stroke_fit"`): only its course counts here, and no
+        reward term compares root positions."""
         offset = self.data.qpos[0:3] - self.ref_q[0][0:3]
         v = self.rot[:2, :2] @ self.v0
         n = float(np.linalg.norm(v))

@@ -11,8 +11,9 @@ from common.config_limits import FINITE, Limit, above, at_least, between, check_
 from common.motion.root_height import ROOT_HEIGHT_RULES
 
 TASK_PARAMS = ("speed", "heading")
-SWIMMER_SPEED_RULES = ("length", "stroke_fit")
 """Task parameters a shape task can sample per episode beside the shape."""
+SWIMMER_SPEED_RULES = ("length", "stroke_fit")
+"""How a swimmer's target speed follows its shape (`ImitateConfig.swimmer_speed`)."""
 
 
 @dataclass(frozen=True)

@@ -34,6 +34,14 @@ def task_space(cfg: TaskConfig) -> ParamSpace:
     return _env_class(cfg.name).param_space(cfg)
 
 
+def task_check(cfg: TaskConfig) -> None:
+    """The task's checks of its configuration that need more than range limits (for example
+    a data file it reads), without building an environment: ValueError naming what is wrong."""
+    check = getattr(_env_class(cfg.name), "check", None)
+    if check is not None:
+        check(cfg)
+
+
 def task_clips(cfg: TaskConfig) -> list[tuple[str, str]]:
     """`(clip_id, label)` pairs the task imitates (empty for tasks without motion clips)."""
     return list(_env_class(cfg.name).clips(cfg))

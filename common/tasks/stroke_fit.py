@@ -6,7 +6,7 @@ Won & Lee 2019 (METHOD.md A, "Reward normalization") scale a body's target veloc
 mean leg length, `v_target = v0 (lbar / lbar0) max(0.5, 1 - sigma_l / lbar)` (a reconstruction);
 for a swimmer the body length stands in for the legs (`rewards.Normalization`). In fluid that
 rule misses most of what sets the speed: with the stroke tracked closely
-(`common.tasks.stroke_speed`) random manta shapes swim 0.64-1.65 times their length-scaled
+(`common.tasks.stroke_speed`) 200 random manta shapes swim 0.27-2.56 times their length-scaled
 target, so a policy that imitates the stroke, which 9 of the reward's 10.5 weight asks for,
 misses the speed term by whatever its shape's stroke gives. `--task.imitate.swimmer-speed
 stroke_fit` asks each shape instead for the speed its own tracked stroke reaches, predicted by
@@ -23,6 +23,7 @@ its measurements and its cross-validated error are written to
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import math
 import time
@@ -41,45 +42,90 @@ class StrokeModelError(ValueError):
     """A stroke-speed model file that is missing, malformed or for another shape space."""
 
 
+def _number(value, what: str, path: Path) -> float:
+    """A finite JSON number (not a string or a boolean), else StrokeModelError naming it."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise StrokeModelError(f"stroke-speed model {path}: {what} = {value!r} must be a number")
+    try:
+        x = float(value)
+    except OverflowError:
+        x = math.inf
+    if not math.isfinite(x):
+        raise StrokeModelError(f"stroke-speed model {path}: {what} = {value!r} must be finite")
+    return x
+
+
 @dataclass(frozen=True)
 class StrokeModel:
-    """`ratio(shape) = exp(bias + weights . log(shape))`: the speed a shape's tracked stroke
-    reaches over its length-scaled target (see the module docstring)."""
+    """`ratio(shape) = exp(bias + weights . log(shape))`, held within `clamp` (the ratios seen
+    while fitting): the speed a shape's tracked stroke reaches over its length-scaled target
+    (see the module docstring). `digest`: the model file's SHA-256 (first 12 hex digits), which
+    evaluations record."""
 
     preset: str
     names: tuple[str, ...]
     bias: float
     weights: np.ndarray  # [len(names)]
+    clamp: tuple[float, float]
+    digest: str = ""
 
     def ratio(self, shape: np.ndarray) -> float:
         x = np.log(np.asarray(shape, dtype=np.float64))
-        return float(np.exp(self.bias + self.weights @ x))
+        log_ratio = float(np.clip(self.bias + self.weights @ x, math.log(self.clamp[0]), math.log(self.clamp[1])))
+        return math.exp(log_ratio)
 
     @staticmethod
     def load(preset: str, names: tuple[str, ...], path: Path | None = None) -> StrokeModel:
         """The model of `preset` over the shape parameters `names`; StrokeModelError naming the
-        file and what is wrong if it is missing, malformed or fitted on other parameters."""
+        file, the value and what is allowed if it is missing, malformed or fitted on other parameters."""
         path = Path(path or MODEL_DIR / f"{preset}.json")
         try:
-            doc = json.loads(path.read_text())
+            raw = path.read_bytes()
+            doc = json.loads(raw)
         except FileNotFoundError:
             raise StrokeModelError(f"stroke-speed model {path} not found: make it with "
                                    f"`python -m common.tasks.stroke_fit {preset}`") from None
-        except (OSError, ValueError) as e:
-            raise StrokeModelError(f"stroke-speed model {path}: not readable JSON ({e})") from None
-        try:
-            got_names = tuple(str(n) for n in doc["names"])
-            bias = float(doc["bias"])
-            weights = np.asarray(doc["weights"], dtype=np.float64)
-            got_preset = str(doc["preset"])
-        except (KeyError, TypeError, ValueError) as e:
-            raise StrokeModelError(f"stroke-speed model {path}: needs preset, names, bias and weights ({e!r})") from None
-        if got_preset != preset or got_names != tuple(names):
-            raise StrokeModelError(f"stroke-speed model {path} is for {got_preset!r} over {len(got_names)} parameters; "
+        except (OSError, ValueError, RecursionError) as e:
+            raise StrokeModelError(f"stroke-speed model {path}: not readable JSON ({type(e).__name__}: {e})") from None
+        if not isinstance(doc, dict) or not all(k in doc for k in ("preset", "names", "bias", "weights", "clamp")):
+            raise StrokeModelError(f"stroke-speed model {path}: needs an object with preset, names, bias, weights and clamp")
+        got_names = doc["names"]
+        if doc["preset"] != preset or not isinstance(got_names, list) or tuple(got_names) != tuple(names):
+            n = len(got_names) if isinstance(got_names, list) else got_names
+            raise StrokeModelError(f"stroke-speed model {path} is for {doc['preset']!r} over {n} parameters; "
                                    f"the task needs {preset!r} over {list(names)}")
-        if weights.shape != (len(names),) or not (math.isfinite(bias) and np.isfinite(weights).all()):
-            raise StrokeModelError(f"stroke-speed model {path}: bias and {len(names)} weights must be finite numbers")
-        return StrokeModel(preset, got_names, bias, weights)
+        if not isinstance(doc["weights"], list) or len(doc["weights"]) != len(names):
+            n = len(doc["weights"]) if isinstance(doc["weights"], list) else repr(doc["weights"])
+            raise StrokeModelError(f"stroke-speed model {path}: weights has {n} entries; give a list of "
+                                   f"{len(names)} numbers, one per parameter")
+        if not isinstance(doc["clamp"], list) or len(doc["clamp"]) != 2:
+            raise StrokeModelError(f"stroke-speed model {path}: clamp = {doc['clamp']!r} must be [low, high]")
+        bias = _number(doc["bias"], "bias", path)
+        weights = np.array([_number(w, f"weights[{i}]", path) for i, w in enumerate(doc["weights"])])
+        lo, hi = (_number(c, f"clamp[{i}]", path) for i, c in enumerate(doc["clamp"]))
+        if not 0.0 < lo <= hi:
+            raise StrokeModelError(f"stroke-speed model {path}: clamp = [{lo}, {hi}] must satisfy 0 < low <= high")
+        return StrokeModel(preset, tuple(names), bias, weights, (lo, hi), hashlib.sha256(raw).hexdigest()[:12])
+
+
+def model_for(task) -> StrokeModel | None:
+    """The stroke-speed model a shape task (`common.tasks.base.TaskConfig`) uses: None unless
+    `swimmer_speed = "stroke_fit"` with reward normalization on (the target speed is not scaled
+    without it); ValueError if the rule is asked of a walker, StrokeModelError if the model
+    file is missing or does not fit the task's shape parameters."""
+    from common.tasks.imitate import ImitateEnv, character_preset
+    from common.tasks.stroke_speed import SWIMMERS
+
+    if task.imitate.swimmer_speed != "stroke_fit":
+        return None
+    preset = character_preset(task)
+    if preset not in SWIMMERS:
+        raise ValueError(f"--task.imitate.swimmer-speed stroke_fit: {preset!r} is not a swimmer; "
+                         f"the rule applies to {', '.join(SWIMMERS)}")
+    if not task.imitate.reward_normalization:
+        return None
+    space = ImitateEnv.param_space(task)
+    return StrokeModel.load(preset, space.names[: space.dim - len(task.imitate.task_params)])
 
 
 def ridge_fit(x: np.ndarray, y: np.ndarray, lam: float) -> tuple[float, np.ndarray]:
@@ -90,28 +136,45 @@ def ridge_fit(x: np.ndarray, y: np.ndarray, lam: float) -> tuple[float, np.ndarr
     return float(my - mx @ w), w
 
 
-def cross_validated_rms(x: np.ndarray, y: np.ndarray, lam: float, folds: int = FOLDS, seed: int = 0) -> float:
-    """Root-mean-square error of log ratio on held-out folds."""
+def out_of_fold(x: np.ndarray, y: np.ndarray, lam: float, folds: int = FOLDS, seed: int = 0) -> np.ndarray:
+    """Each sample's prediction of log ratio by the fit on the other folds."""
     idx = np.random.default_rng(seed).permutation(len(y))
-    errs = []
+    pred = np.empty(len(y))
     for part in np.array_split(idx, folds):
         train = np.setdiff1d(idx, part)
         b, w = ridge_fit(x[train], y[train], lam)
-        errs.append(y[part] - b - x[part] @ w)
-    return float(np.sqrt(np.mean(np.concatenate(errs) ** 2)))
+        pred[part] = b + x[part] @ w
+    return pred
+
+
+def cross_validated_rms(x: np.ndarray, y: np.ndarray, lam: float, folds: int = FOLDS, seed: int = 0) -> float:
+    """Root-mean-square error of log ratio on held-out folds."""
+    return float(np.sqrt(np.mean((y - out_of_fold(x, y, lam, folds, seed)) ** 2)))
 
 
 def fit(params: np.ndarray, ratios: np.ndarray) -> dict:
-    """Pick the ridge strength by cross-validation, fit on all samples; summary figures."""
+    """Pick the ridge strength by cross-validation, fit on all samples; summary figures, in
+    sample and held out (each shape predicted by the fit on the other folds). A "speed error"
+    is |tracked speed - target| / target, what `morphmimic evaluate` reports for a swimmer."""
     x, y = np.log(params), np.log(ratios)
     cv = {lam: cross_validated_rms(x, y, lam) for lam in RIDGE}
     lam = min(cv, key=cv.get)
     b, w = ridge_fit(x, y, lam)
+    held_out = y - out_of_fold(x, y, lam)
     resid = y - b - x @ w
+
+    def speed_error_pct(r: np.ndarray) -> float:
+        return float(100.0 * np.mean(np.abs(np.exp(r) - 1.0)))
+
     return {"bias": b, "weights": w.tolist(), "ridge": lam,
+            "clamp": [float(ratios.min()), float(ratios.max())],
             "cv_rms_log": cv[lam], "fit_rms_log": float(np.sqrt(np.mean(resid ** 2))),
             "ratio_range": [float(ratios.min()), float(ratios.max())],
-            "residual_ratio_range": [float(np.exp(resid.min())), float(np.exp(resid.max()))]}
+            "speed_error_pct_length_rule": speed_error_pct(y),
+            "speed_error_pct_fit": speed_error_pct(resid),
+            "speed_error_pct_held_out": speed_error_pct(held_out),
+            "residual_ratio_range": [float(np.exp(resid.min())), float(np.exp(resid.max()))],
+            "held_out_ratio_range": [float(np.exp(held_out.min())), float(np.exp(held_out.max()))]}
 
 
 def measure(preset: str, shapes: int, seed: int, log=print) -> tuple[tuple[str, ...], np.ndarray, np.ndarray, np.ndarray]:
@@ -137,34 +200,82 @@ def measure(preset: str, shapes: int, seed: int, log=print) -> tuple[tuple[str, 
     return space.names[:n_shape], params, speeds, targets
 
 
+def base_ratio(preset: str) -> float:
+    """The base body's tracked stroke speed over its clip's speed (1 when the clip is calibrated)."""
+    from common.tasks.stroke_speed import stroke_speed
+
+    s = stroke_speed(preset)
+    return s.speed_m_s / s.clip_speed_m_s
+
+
+def _refit_samples(path: Path) -> tuple[tuple[str, ...], np.ndarray, np.ndarray, np.ndarray, dict]:
+    """The measurements stored in a model file (see `main --refit`)."""
+    try:
+        doc = json.loads(path.read_text())
+        smp = doc["samples"]
+        names = tuple(str(n) for n in doc["names"])
+        params = np.asarray(smp["params"], dtype=np.float64)
+        speeds = np.asarray(smp["speed_m_s"], dtype=np.float64)
+        targets = np.asarray(smp["target_m_s"], dtype=np.float64)
+    except (OSError, ValueError, KeyError, TypeError, OverflowError, RecursionError) as e:
+        raise StrokeModelError(f"--refit: {path} holds no readable samples ({type(e).__name__}: {e})") from None
+    n = len(speeds)
+    if params.shape != (n, len(names)) or targets.shape != (n,) or n < 20:
+        raise StrokeModelError(f"--refit: {path} has params {params.shape}, speeds {speeds.shape}, targets "
+                               f"{targets.shape}; need at least 20 shapes over {len(names)} parameters")
+    if not (np.isfinite(params).all() and (params > 0).all()):
+        raise StrokeModelError(f"--refit: {path}: every shape parameter must be a finite positive number")
+    return names, params, speeds, targets, doc
+
+
 def main(argv: list[str] | None = None) -> int:
     from common.tasks.stroke_speed import SWIMMERS
 
     p = argparse.ArgumentParser(prog="python -m common.tasks.stroke_fit", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("preset", choices=SWIMMERS, help="the swimmer whose shapes to measure")
-    p.add_argument("--shapes", type=int, default=200, help="random shapes to measure (>= 20)")
+    p.add_argument("--shapes", type=int, default=200, help="random shapes to measure (20-5000)")
     p.add_argument("--seed", type=int, default=0, help="seed of the shape draws")
     p.add_argument("--out", type=Path, default=None, help="model file (default: common/data/stroke_speed/<preset>.json)")
+    p.add_argument("--refit", action="store_true",
+                   help="fit again from the measurements stored in the model file, without measuring")
+    p.add_argument("--force", action="store_true",
+                   help="measure anew over an existing model file (runs and evaluations that use it change targets)")
     args = p.parse_args(argv)
-    if not 20 <= args.shapes <= 5000:
-        p.error(f"--shapes {args.shapes}: give 20 to 5000 (the fit has up to 27 weights)")
-    names, params, speeds, targets = measure(args.preset, args.shapes, args.seed)
+    out = args.out or MODEL_DIR / f"{args.preset}.json"
+    if args.refit:
+        try:
+            names, params, speeds, targets, old = _refit_samples(out)
+        except StrokeModelError as e:
+            p.error(str(e))
+        shapes, seed, base = len(speeds), old.get("seed", args.seed), old.get("base_ratio")
+    else:
+        if not 20 <= args.shapes <= 5000:
+            p.error(f"--shapes {args.shapes}: give 20 to 5000 (the fit has up to 27 weights)")
+        if out.exists() and not args.force:
+            p.error(f"{out} exists: a new measurement changes the targets of every run and evaluation that uses it; "
+                    "give --force to replace it, --refit to fit its stored measurements again, or --out")
+        names, params, speeds, targets = measure(args.preset, args.shapes, args.seed)
+        shapes, seed, base = args.shapes, args.seed, None
     ratios = speeds / targets
     if not (np.isfinite(ratios).all() and (ratios > 0).all()):
         p.error(f"{args.preset}: a shape swam backwards or not at all (ratios {ratios.min():.3f}-{ratios.max():.3f}); no model written")
     summary = fit(params, ratios)
-    out = args.out or MODEL_DIR / f"{args.preset}.json"
+    base = base_ratio(args.preset) if base is None else float(base)
     out.parent.mkdir(parents=True, exist_ok=True)
-    doc = {"preset": args.preset, "names": list(names), **summary,
-           "command": f"python -m common.tasks.stroke_fit {args.preset} --shapes {args.shapes} --seed {args.seed}",
+    doc = {"preset": args.preset, "names": list(names), **summary, "seed": seed,
+           "base_ratio": base, "base_ratio_predicted": math.exp(summary["bias"]),
+           "command": f"python -m common.tasks.stroke_fit {args.preset} --shapes {shapes} --seed {seed}",
            "samples": {"params": params.round(6).tolist(), "speed_m_s": speeds.round(6).tolist(),
                        "target_m_s": targets.round(6).tolist()}}
     out.write_text(json.dumps(doc, indent=1) + "\n")
-    print(f"{args.preset}: {args.shapes} shapes swim x{summary['ratio_range'][0]:.2f}-x{summary['ratio_range'][1]:.2f} "
-          f"their length-scaled target; after the fit x{summary['residual_ratio_range'][0]:.2f}-"
-          f"x{summary['residual_ratio_range'][1]:.2f} (held-out rms {100 * summary['cv_rms_log']:.1f}% in log), "
-          f"ridge {summary['ridge']:g}; wrote {out}")
+    print(f"{args.preset}: {shapes} shapes swim x{summary['ratio_range'][0]:.2f}-x{summary['ratio_range'][1]:.2f} "
+          f"their length-scaled target ({summary['speed_error_pct_length_rule']:.1f}% mean speed error for a "
+          f"perfectly tracked stroke); against the fitted target x{summary['residual_ratio_range'][0]:.2f}-"
+          f"x{summary['residual_ratio_range'][1]:.2f} ({summary['speed_error_pct_fit']:.1f}%) in sample, "
+          f"x{summary['held_out_ratio_range'][0]:.2f}-x{summary['held_out_ratio_range'][1]:.2f} "
+          f"({summary['speed_error_pct_held_out']:.1f}%) held out; ridge {summary['ridge']:g}; "
+          f"base body x{base:.2f} measured, x{math.exp(summary['bias']):.2f} predicted; wrote {out}")
     return 0
 
 

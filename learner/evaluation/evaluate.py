@@ -150,10 +150,10 @@ def swim_rows(s: dict) -> list[str]:
     """A swimmer's speed, heading and upright rows of the summary table (`swim_metrics`); none for a walker."""
     if "swim_upright_pct" not in s:
         return []
-    return [f"| swim speed error (% of the target speed, after the first {swim_metrics.WARMUP_S:g} s) | "
+    rule = s.get("swim_target_rule", "length")
+    return [f"| swim speed error (% of the target speed, {rule} rule, after the first {swim_metrics.WARMUP_S:g} s) | "
             f"{s.get('swim_speed_error_pct', float('nan')):.1f} |",
-            *([f"| swim speed error against the length rule's target (%) | {s['swim_speed_error_length_pct']:.1f} |"]
-              if abs(s.get("swim_speed_error_length_pct", 0.0) - s.get("swim_speed_error_pct", 0.0)) > 1e-9 else []),
+            f"| swim speed error against the length rule's target (%) | {s.get('swim_speed_error_length_pct', float('nan')):.1f} |",
             f"| swim heading error (degrees) | {s.get('swim_heading_error_deg', float('nan')):.1f} |",
             f"| time upright (root's up axis within {swim_metrics.UPRIGHT_DEG:g} degrees of the reference's), % | "
             f"{s['swim_upright_pct']:.1f} |",
@@ -165,7 +165,9 @@ def swim_line(s: dict) -> str:
     """The swimmer's figures for the closing line of `evaluate` ("" for a walker)."""
     if "swim_upright_pct" not in s:
         return ""
-    return (f"; swimming: speed error {s.get('swim_speed_error_pct', float('nan')):.1f}%, heading error "
+    return (f"; swimming: speed error {s.get('swim_speed_error_pct', float('nan')):.1f}% "
+            f"({s.get('swim_target_rule', 'length')} rule; {s.get('swim_speed_error_length_pct', float('nan')):.1f}% "
+            f"against the length rule's target), heading error "
             f"{s.get('swim_heading_error_deg', float('nan')):.1f} deg, upright {s['swim_upright_pct']:.1f}%")
 
 
@@ -196,7 +198,10 @@ def main(argv: list[str]) -> int:
     from common.tasks.registry import make_env, task_space
 
     task = eval_core.eval_task(loaded.cfg.task, args.episode_s, args.box_scale)
-    env = make_env(task, seed=0)
+    try:
+        env = make_env(task, seed=0)
+    except ValueError as exc:  # e.g. a swimmer's stroke-speed model that is missing or does not fit
+        raise SystemExit(f"morphmimic evaluate: {loaded.name}: {exc}") from None
     if env.character.is_swimmer and (args.root_height is not None or args.clearance is not None):
         raise SystemExit(f"--root-height/--clearance: {loaded.name} is a swimmer ({task.name}); its reference has no "
                          "feet to retarget onto the floor")
@@ -230,6 +235,9 @@ def main(argv: list[str]) -> int:
             "fall_rule": args.fall_rule,
             "root_height": args.root_height or loaded.cfg.task.imitate.retarget_root_height,
             "clearance_m": loaded.cfg.task.imitate.retarget_body_clearance_m if args.clearance is None else args.clearance}
+    if env.character.is_swimmer:
+        meta["swimmer_speed"] = swim_metrics.target_rule(env)
+        summary["swim_target_rule"] = meta["swimmer_speed"]
 
     def write_results() -> None:
         (out / "results.json").write_text(json.dumps({"meta": meta, "summary": summary, "shapes": results}, indent=1) + "\n")

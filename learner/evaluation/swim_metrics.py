@@ -41,6 +41,15 @@ WARMUP_S = COM_WINDOW_S
 """Seconds at the start of an episode left out of the speed and heading errors (the COM window)."""
 
 
+def target_rule(env: Any) -> str:
+    """How the swimmer's target speed was set in this evaluation: "length", "stroke_fit <model
+    digest>" (`common.tasks.stroke_fit`), or unscaled without reward normalization."""
+    if not env.cfg.imitate.reward_normalization:
+        return "unscaled (no reward normalization)"
+    model = getattr(env, "stroke_model", None)
+    return "length" if model is None else f"stroke_fit {model.digest}"
+
+
 class SwimTracker:
     """Called after every control step of an evaluation episode (`eval_core.run_episode`'s
     `on_step`); `result()` gives the episode's swim metrics."""

@@ -47,6 +47,9 @@ def test_every_numeric_field_of_the_run_config_has_a_limit() -> None:
     (["--ppo.lr", "abc"], "--ppo.lr: could not convert string to float: 'abc'; expected: --ppo.lr FLOAT"),
     (["--ppo.lrr", "1"], "Unrecognized options: --ppo.lrr"),
     (["--preset", "nope"], "--preset 'nope' is unknown"),
+    (["--preset", "fish", "--task.imitate.swimmer-speed", "stroke_fit"], "fish.json not found: make it with `python -m common.tasks.stroke_fit fish`"),
+    (["--preset", "lower_biped-tiny", "--task.imitate.swimmer-speed", "stroke_fit"], "'lower_biped' is not a swimmer"),
+    (["--preset", "manta", "--task.imitate.swimmer-speed", "fast"], "--task.imitate.swimmer-speed = 'fast': give length, stroke_fit"),
 ])
 def test_a_bad_value_is_one_line_naming_it_and_exit_2(args, says, capsys) -> None:
     with pytest.raises(SystemExit) as exc:

@@ -85,6 +85,7 @@ def test_evaluate_reports_swimming_figures_for_a_fish(tmp_path: Path, capsys) ->
         assert (r["swim_speed_error_pct"] is None) == (r["seconds"] < 2.0)
     summary = (out / "summary.md").read_text()
     assert "swim heading error" in summary and "time upright" in summary
+    assert "length rule" in summary and json.loads((out / "results.json").read_text())["meta"]["swimmer_speed"] == "length"
 
 
 def test_evaluate_refuses_a_floor_retargeting_for_a_swimmer(tmp_path: Path) -> None:
