@@ -249,6 +249,24 @@ def test_ablation_says_whether_the_papers_two_effects_reproduce(norm_falls, nono
     assert "lower_biped, reward normalization: not compared" in "\n".join(ablation.effects(rows))
 
 
+def test_a_map_that_is_more_even_only_in_its_worst_cell_is_called_so() -> None:
+    from types import SimpleNamespace
+
+    from learner.evaluation import ablation
+
+    def row(preset: str, uniformity: float, returns: list[float]) -> dict:
+        return {"loaded": SimpleNamespace(cfg=PRESETS[preset][1]), "shapes": [{"return": x} for x in returns],
+                "summary": {"return_map_uniformity": uniformity, "return_map": [[1.0, 2.0], [-1.0, 3.0]],
+                            "fall_down_pct_extreme10": 10.0}}
+
+    even, uneven = [10.0] * 20, [1.0] * 5 + [10.0] * 15
+    assert ablation.spread(row("quadruped", 0.5, even)) == pytest.approx((1.0, np.std([1, 2, 3]) / 2.0))
+    text = "\n".join(ablation.effects([row("quadruped", 0.6, uneven), row("quadruped-uniform", 0.3, even)]))
+    assert "return map: **reproduces by the worst cell only**" in text, text
+    text = "\n".join(ablation.effects([row("quadruped", 0.6, even), row("quadruped-uniform", 0.3, uneven)]))
+    assert "return map: **reproduces** " in text, text
+
+
 def test_ablation_keeps_two_checkpoints_of_one_run_apart(tmp_path: Path) -> None:
     from learner.evaluation import ablation, eval_core
     from learner.learner import Learner
