@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import dataclasses
 import statistics
 import time
 
@@ -95,14 +96,67 @@ def measure(preset: str, rounds: int, seed: int = 0) -> dict[str, object]:
     }
 
 
+def parse_schedules(text: str) -> list[tuple[int, int]]:
+    """"10x128,10x512" -> [(10, 128), (10, 512)]: epochs x minibatch per PPO update."""
+    out = []
+    for item in text.split(","):
+        try:
+            epochs, minibatch = (int(x) for x in item.strip().lower().split("x"))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{item!r}: give EPOCHSxMINIBATCH, e.g. 10x128") from None
+        if not (1 <= epochs <= 100 and 1 <= minibatch <= 65536):
+            raise argparse.ArgumentTypeError(f"{item!r}: epochs 1-100 and minibatch 1-65536")
+        out.append((epochs, minibatch))
+    return out
+
+
+def measure_schedules(preset: str, schedules: list[tuple[int, int]], rounds: int, seed: int = 0) -> list[dict]:
+    """Wall time of one whole `PPO.update` per epochs x minibatch schedule, on the same batch
+    and start, interleaved (the order reversed every other round), the KL stop off so every
+    schedule does all its epochs: the learner's cost per collected sample under each."""
+    cfg = PRESETS[preset][1]
+    env = make_env(cfg.task, seed=0)
+    obs_dim, act_dim = env.obs_dim, env.act_dim
+    del env
+    torch.manual_seed(seed)
+    policy, value = GaussianPolicy(obs_dim, act_dim, cfg.policy), ValueNet(obs_dim, cfg.policy)
+    batch = random_batch(policy, cfg.steps_per_iteration, cfg.actors.unroll_length, seed)
+    times: dict[tuple[int, int], list[float]] = {s: [] for s in schedules}
+    for r in range(rounds + 1):  # round 0 warms up and is not timed
+        for sched in (schedules if r % 2 else schedules[::-1]):
+            ppo = PPO(copy.deepcopy(policy), copy.deepcopy(value),
+                      dataclasses.replace(cfg.ppo, epochs=sched[0], minibatch=sched[1], kl_stop=0.0))
+            t0 = time.perf_counter()
+            ppo.update(batch, torch.Generator().manual_seed(seed + r))
+            if r:
+                times[sched].append(time.perf_counter() - t0)
+    first = statistics.median(times[schedules[0]])
+    return [{"epochs": e, "minibatch": m, "update_s": statistics.median(times[(e, m)]),
+             "us_per_sample": 1e6 * statistics.median(times[(e, m)]) / cfg.steps_per_iteration,
+             "speedup_vs_first": first / statistics.median(times[(e, m)])} for e, m in schedules]
+
+
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="morphmimic bench learner", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--presets", default="lower_biped,executor", help="comma-separated training presets")
     parser.add_argument("--rounds", type=int, default=10, help="timed rounds, each one old and one new update")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (the learner's, next to the actors)")
+    parser.add_argument("--schedules", type=parse_schedules, default=None,
+                        help="instead: whole updates under these epochs x minibatch schedules, e.g. 10x128,10x512,5x256 "
+                             "(the first is the reference of the ratios)")
     args = parser.parse_args(argv)
+    if not 1 <= args.rounds <= 1000 or not 1 <= args.threads <= 256:
+        parser.error(f"--rounds {args.rounds} / --threads {args.threads}: give 1-1000 rounds and 1-256 threads")
     torch.set_num_threads(args.threads)
+    if args.schedules:
+        for preset in args.presets.split(","):
+            rows = measure_schedules(preset.strip(), args.schedules, args.rounds)
+            print(f"{preset.strip()}: one PPO update per schedule, {args.threads} thread(s), {args.rounds} rounds, KL stop off")
+            for x in rows:
+                print(f"  {x['epochs']:3d} epochs x {x['minibatch']:5d}  {1e3 * x['update_s']:8.1f} ms per update  "
+                      f"{x['us_per_sample']:7.1f} us per sample  {x['speedup_vs_first']:5.2f}x the first's speed")
+        return 0
     for preset in args.presets.split(","):
         m = measure(preset.strip(), args.rounds)
         print(f"{m['preset']}: obs {m['obs_dim']}, act {m['act_dim']}, hidden {m['hidden']}, "
