@@ -59,14 +59,20 @@ def _max_param_diff(a: PPO, b: PPO) -> float:
     return max(float((x - y).abs().max()) for x, y in zip(pa, pb))
 
 
-def measure(preset: str, rounds: int, seed: int = 0) -> dict[str, object]:
+def _start(preset: str, seed: int):
+    """(run config, fresh policy, value net, one batch of random transitions) of a preset."""
     cfg = PRESETS[preset][1]
     env = make_env(cfg.task, seed=0)
     obs_dim, act_dim = env.obs_dim, env.act_dim
     del env
     torch.manual_seed(seed)
     policy, value = GaussianPolicy(obs_dim, act_dim, cfg.policy), ValueNet(obs_dim, cfg.policy)
-    batch = random_batch(policy, cfg.steps_per_iteration, cfg.actors.unroll_length, seed)
+    return cfg, policy, value, random_batch(policy, cfg.steps_per_iteration, cfg.actors.unroll_length, seed)
+
+
+def measure(preset: str, rounds: int, seed: int = 0) -> dict[str, object]:
+    cfg, policy, value, batch = _start(preset, seed)
+    obs_dim, act_dim = policy.obs_dim, policy.act_dim
     start = PPO(policy, value, cfg.ppo)
     runners = {"old": lambda p, g: reference_update(p, batch, g), "new": lambda p, g: p.update(batch, g)}
     per_step: dict[str, list[float]] = {"old": [], "new": []}
@@ -114,13 +120,7 @@ def measure_schedules(preset: str, schedules: list[tuple[int, int]], rounds: int
     """Wall time of one whole `PPO.update` per epochs x minibatch schedule, on the same batch
     and start, interleaved (the order reversed every other round), the KL stop off so every
     schedule does all its epochs: the learner's cost per collected sample under each."""
-    cfg = PRESETS[preset][1]
-    env = make_env(cfg.task, seed=0)
-    obs_dim, act_dim = env.obs_dim, env.act_dim
-    del env
-    torch.manual_seed(seed)
-    policy, value = GaussianPolicy(obs_dim, act_dim, cfg.policy), ValueNet(obs_dim, cfg.policy)
-    batch = random_batch(policy, cfg.steps_per_iteration, cfg.actors.unroll_length, seed)
+    cfg, policy, value, batch = _start(preset, seed)
     times: dict[tuple[int, int], list[float]] = {s: [] for s in schedules}
     for r in range(rounds + 1):  # round 0 warms up and is not timed
         for sched in (schedules if r % 2 else schedules[::-1]):
