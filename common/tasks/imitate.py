@@ -89,10 +89,15 @@ class ImitateEnv:
     @staticmethod
     def check(cfg: TaskConfig) -> None:
         """A swimmer's stroke-speed model loads and fits the shape parameters when the task asks
-        for it (`common.tasks.stroke_fit.model_for`); ValueError otherwise."""
+        for it (`common.tasks.stroke_fit.model_for`), and only a swimmer observes its course;
+        ValueError otherwise."""
         from common.tasks.stroke_fit import model_for
 
         model_for(cfg)
+        preset = character_preset(cfg)
+        if cfg.imitate.observe_course and not references.base_character(preset, 1.0 / cfg.sim_hz).is_swimmer:
+            raise ValueError(f"--task.imitate.observe-course: {preset!r} is not a swimmer; only a swimmer has a "
+                             "course to keep (the walkers' fall is a floor contact)")
 
     @staticmethod
     def clips(cfg: TaskConfig) -> list[tuple[str, str]]:
@@ -321,9 +326,10 @@ class ImitateEnv:
         v_avg = frame[:2, :2].T @ self.com_velocity_avg()
         com_vel = frame.T @ d.subtree_linvel[self.root_body]
         phase = 2.0 * math.pi * ((self.tau0 + self.speed * self.k * self.dt) / self.motion.duration_s)
+        course = [frame.T @ self.course_offset() / self.length_m] if self.cfg.imitate.observe_course else []
         return np.concatenate([
             self.params, root_frame_features(d.qpos, d.qvel, frame), self.layout.to_vector(d.qpos), d.qvel[6:],
-            ee.reshape(-1), *refs, v_target, v_avg, com_vel, [math.sin(phase), math.cos(phase)],
+            ee.reshape(-1), *refs, v_target, v_avg, com_vel, [math.sin(phase), math.cos(phase)], *course,
         ]).astype(np.float32)
 
     def reward_terms(self, body_frame: tuple[np.ndarray, np.ndarray] | None = None) -> dict[str, float]:
@@ -371,11 +377,17 @@ class ImitateEnv:
         a fall. The reference's root moves at the length-scaled speed even when the target speed
         is the fitted one (`swimmer_speed = "stroke_fit"`): only its course counts here, and no
         reward term compares root positions."""
+        return float(np.linalg.norm(self.course_offset()))
+
+    def course_offset(self) -> np.ndarray:
+        """`[3]` m in the world: the root's offset from the reference root with the part along the
+        reference's direction of travel removed (`off_course_m` is its length; with
+        `observe_course` the policy sees it in its heading frame, in body lengths)."""
         offset = self.data.qpos[0:3] - self.ref_q[0][0:3]
         v = self.rot[:2, :2] @ self.v0
         n = float(np.linalg.norm(v))
         along = np.array([v[0] / n, v[1] / n, 0.0]) if n > 1e-9 else self.rot[:, 0]
-        return float(np.linalg.norm(offset - (offset @ along) * along))
+        return offset - (offset @ along) * along
 
     def paper_fell(self) -> bool:
         """Won & Lee 2019's fall: a walker's floor contact of any body other than the feet (the

@@ -60,6 +60,12 @@ class ImitateConfig:
     """Swimmers: terminate (as a fall) when the root is this many body lengths off the
     reference's course (sideways or vertically; lagging or leading along it is not a fall, see
     `ImitateEnv.off_course_m`); 0 turns it off."""
+    observe_course: bool = False
+    """Swimmers: the observation ends with the root's offset from the reference's course (the
+    quantity `max_root_deviation` ends episodes on: sideways, vertical and, from the heading
+    error, along; in the root's heading frame, in body lengths), which it otherwise lacks
+    (sideways drift is invisible to it). Three more inputs: a checkpoint trained without it does
+    not resume with it."""
     swimmer_speed: str = "length"
     """Swimmers, with reward normalization: the target speed of a shape. "length": the clip's
     speed times the body length over the base's (the leg-length rule of METHOD.md A with the
