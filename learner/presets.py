@@ -84,7 +84,7 @@ def _shape_preset(character: str, parameterization: str, plot: tuple[str, str], 
     x0.42-x1.35 on held-out shapes (10.7% mean error). The fish keeps the length rule
     (its shapes' strokes: x0.78-x1.18 on 10 shapes). The manta also observes its offset from the
     reference's course (`observe_course`), on which its episodes end: its run without it drifted
-    off course late in the episode (falls at 19.5 s on average, 40% of 50 shapes at 2.84 M
+    off course late in the episode (falls at 19.5 s on average, 40% of 50 shapes at 2.83 M
     steps), sideways as much as vertically. Variants for the ablations:
     "uniform" (k = 0), "nonorm" (no reward normalization), "fixedshape" (the base shape only)."""
     from common.policy import PolicyConfig

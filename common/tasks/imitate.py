@@ -125,6 +125,7 @@ class ImitateEnv:
         self._base_legs = self._legs(self.base)
         from common.tasks.stroke_fit import model_for
 
+        self.check(cfg)
         self.stroke_model = model_for(cfg)
         """The swimmer's fitted stroke-speed model under `swimmer_speed = "stroke_fit"`, else None."""
         self._cache: collections.OrderedDict[bytes, tuple] = collections.OrderedDict()

@@ -64,8 +64,8 @@ class ImitateConfig:
     """Swimmers: the observation ends with the root's offset from the reference's course (the
     quantity `max_root_deviation` ends episodes on: sideways, vertical and, from the heading
     error, along; in the root's heading frame, in body lengths), which it otherwise lacks
-    (sideways drift is invisible to it). Three more inputs: a checkpoint trained without it does
-    not resume with it."""
+    (sideways drift is invisible to it). Three more inputs: a checkpoint trained without it
+    resumes only with `--task.imitate.no-observe-course`."""
     swimmer_speed: str = "length"
     """Swimmers, with reward normalization: the target speed of a shape. "length": the clip's
     speed times the body length over the base's (the leg-length rule of METHOD.md A with the
