@@ -170,8 +170,9 @@ def effects(rows: list[dict]) -> list[str]:
                          f"(min/mean {a:.2f} adaptive, {b:.2f} uniform; per-shape return p10/mean {pa:.2f} and "
                          f"{pb:.2f}, map cell CV {ca:.2f} and {cb:.2f}; the paper: a markedly more uniform map).")
             lines.append(f"- {task}, adaptive sampling lets extreme shapes fall less: **{_verdict(ea, eb, FALL_MARGIN_PCT)}** "
-                         f"(the most extreme 10% of shapes fall {ea:.1f}% adaptive, {eb:.1f}% uniform, by the task's "
-                         "rule; the paper: extreme shapes fall far less).")
+                         f"(the most extreme 10% of shapes fall {ea:.1f}% adaptive, {eb:.1f}% uniform, by the "
+                         f"{'paper' if base.get('meta', {}).get('fall_rule') == 'paper' else 'task'}'s rule; the paper: "
+                         "extreme shapes fall far less).")
         else:
             lines.append(f"- {task}, adaptive sampling: not compared (an adaptive and a uniform arm, both normalized, "
                          "are needed).")
