@@ -87,17 +87,17 @@ class ImitateEnv:
         return ParamSpace(tuple(names), tuple(low), tuple(high), tuple(default), tuple(doc))
 
     @staticmethod
-    def check(cfg: TaskConfig) -> None:
+    def check(cfg: TaskConfig):
         """A swimmer's stroke-speed model loads and fits the shape parameters when the task asks
         for it (`common.tasks.stroke_fit.model_for`), and only a swimmer observes its course;
-        ValueError otherwise."""
+        ValueError otherwise. Returns the model (None when the task uses none)."""
         from common.tasks.stroke_fit import model_for
 
-        model_for(cfg)
         preset = character_preset(cfg)
         if cfg.imitate.observe_course and not references.base_character(preset, 1.0 / cfg.sim_hz).is_swimmer:
             raise ValueError(f"--task.imitate.observe-course: {preset!r} is not a swimmer; only a swimmer has a "
                              "course to keep (the walkers' fall is a floor contact)")
+        return model_for(cfg)
 
     @staticmethod
     def clips(cfg: TaskConfig) -> list[tuple[str, str]]:
@@ -123,10 +123,7 @@ class ImitateEnv:
         self.v0 = references.cycle_velocity(base_clip)
         self.tau_scale = self.base.model.actuator_forcerange[:, 1].copy()
         self._base_legs = self._legs(self.base)
-        from common.tasks.stroke_fit import model_for
-
-        self.check(cfg)
-        self.stroke_model = model_for(cfg)
+        self.stroke_model = self.check(cfg)
         """The swimmer's fitted stroke-speed model under `swimmer_speed = "stroke_fit"`, else None."""
         self._cache: collections.OrderedDict[bytes, tuple] = collections.OrderedDict()
         self._factory = CharacterFactory(self.preset, cfg.body.parameterization, timestep_s=self.timestep_s)

@@ -225,6 +225,11 @@ def _refit_samples(path: Path) -> tuple[tuple[str, ...], np.ndarray, np.ndarray,
                                f"{targets.shape}; need at least 20 shapes over {len(names)} parameters")
     if not (np.isfinite(params).all() and (params > 0).all()):
         raise StrokeModelError(f"--refit: {path}: every shape parameter must be a finite positive number")
+    seed, base = doc.get("seed", 0), doc.get("base_ratio")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise StrokeModelError(f"--refit: {path}: seed = {seed!r} must be an integer >= 0")
+    if base is not None and (isinstance(base, bool) or not isinstance(base, (int, float)) or not 0 < base < 1e3):
+        raise StrokeModelError(f"--refit: {path}: base_ratio = {base!r} must be a positive number")
     return names, params, speeds, targets, doc
 
 
@@ -242,6 +247,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--force", action="store_true",
                    help="measure anew over an existing model file (runs and evaluations that use it change targets)")
     args = p.parse_args(argv)
+    if args.seed < 0:
+        p.error(f"--seed {args.seed}: give an integer >= 0")
     out = args.out or MODEL_DIR / f"{args.preset}.json"
     if args.refit:
         try:

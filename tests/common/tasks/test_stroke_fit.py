@@ -128,3 +128,23 @@ def test_a_manta_asks_for_its_own_stroke_speed() -> None:
     other = np.random.default_rng(4).uniform(space.low_array, space.high_array)
     env.set_shape(other)
     assert env.norm.speed_factor == pytest.approx(env.stroke_model.ratio(other))
+
+
+def test_the_fit_command_refuses_bad_input_by_name(tmp_path: Path, capsys) -> None:
+    from common.tasks import stroke_fit
+
+    def fails(*argv: str) -> str:
+        with pytest.raises(SystemExit) as exc:
+            stroke_fit.main(list(argv))
+        assert exc.value.code == 2
+        return capsys.readouterr().err
+
+    assert "--seed -1: give an integer >= 0" in fails("manta", "--seed", "-1", "--out", str(tmp_path / "m.json"))
+    assert "--shapes 5: give 20 to 5000" in fails("manta", "--shapes", "5", "--out", str(tmp_path / "m.json"))
+    assert "exists" in fails("manta", "--out", str(_model(tmp_path)))  # no measuring over a model without --force
+    assert "holds no readable samples" in fails("manta", "--refit", "--out", str(_model(tmp_path)))
+    rows = {"params": [[1.0, 1.0]] * 20, "speed_m_s": [0.3] * 20, "target_m_s": [0.3] * 20}
+    bad = _model(tmp_path, samples={**rows, "speed_m_s": ["fast"] * 20})
+    assert "holds no readable samples" in fails("manta", "--refit", "--out", str(bad))
+    bad = _model(tmp_path, samples=rows, base_ratio="1.0")
+    assert "base_ratio = '1.0' must be a positive number" in fails("manta", "--refit", "--out", str(bad))
