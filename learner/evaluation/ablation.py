@@ -216,11 +216,8 @@ def main(argv: list[str]) -> int:
         "fall far less. Task achievement is this project's own scale, not comparable with the paper's; every "
         "difference from the paper's protocol is listed in docs/shape-controllers.md.", "",
     ])
-    (out / "ablation.md").write_text(text)
-    (out / "ablation.json").write_text(json.dumps(
-        [{"name": r["meta"]["name"], "training": describe(r["loaded"].cfg), "meta": r["meta"], "summary": r["summary"]}
-         for r in rows], indent=1) + "\n")
-    print(text)
+    eval_core.write_ablation(out, text, [{"name": r["meta"]["name"], "training": describe(r["loaded"].cfg), "meta": r["meta"],
+                                          "summary": r["summary"]} for r in rows])
     return 0
 
 

@@ -22,12 +22,17 @@ def _number(text: str, kind: type, allowed: str) -> float:
     return value
 
 
+def _within(text: str, kind: type, ok, allowed: str):
+    """`text` as a `kind` for which `ok(value)` holds; a usage error saying it must be `allowed` otherwise."""
+    value = _number(text, kind, allowed)
+    if not ok(value):
+        raise argparse.ArgumentTypeError(f"{text!r} must be {allowed}")
+    return value
+
+
 def positive_int(text: str) -> int:
     """An integer >= 1 (shape counts, worker counts, strides)."""
-    value = _number(text, int, "an integer >= 1")
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r} must be an integer >= 1")
-    return value
+    return _within(text, int, lambda v: v >= 1, "an integer >= 1")
 
 
 def positive_ints(text: str) -> list[int]:
@@ -41,44 +46,27 @@ def positive_ints(text: str) -> list[int]:
 def seed(text: str) -> int:
     """A random seed: an integer >= 0 (numpy's generators refuse negative seeds) and below 2^32
     (torch's manual_seed overflows past 2^64)."""
-    value = _number(text, int, "an integer >= 0")
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{text!r} must be an integer >= 0")
-    if value >= 2**32:
-        raise argparse.ArgumentTypeError(f"{text!r} must be an integer >= 0 and below 2^32")
-    return value
+    return _within(text, int, lambda v: 0 <= v < 2**32, "an integer >= 0 and below 2^32")
 
 
 def percent(text: str) -> float:
     """A percentage in [0, 100] (a fall-down target)."""
-    value = _number(text, float, "a number in [0, 100]")
-    if not 0.0 <= value <= 100.0:
-        raise argparse.ArgumentTypeError(f"{text!r} must be a number in [0, 100]")
-    return value
+    return _within(text, float, lambda v: 0.0 <= v <= 100.0, "a number in [0, 100]")
 
 
 def positive_float(text: str) -> float:
     """A finite number > 0 (episode lengths in seconds)."""
-    value = _number(text, float, "a finite number > 0")
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"{text!r} must be a finite number > 0")
-    return value
+    return _within(text, float, lambda v: v > 0, "a finite number > 0")
 
 
 def clearance(text: str) -> float:
     """A body clearance in metres, in [0, 0.1] (`--task.imitate.retarget-body-clearance-m`'s range)."""
-    value = _number(text, float, "a number of metres in [0, 0.1]")
-    if not 0.0 <= value <= 0.1:
-        raise argparse.ArgumentTypeError(f"{text!r} must be a number of metres in [0, 0.1]")
-    return value
+    return _within(text, float, lambda v: 0.0 <= v <= 0.1, "a number of metres in [0, 0.1]")
 
 
 def port(text: str) -> int:
     """A TCP/UDP port: an integer in [0, 65535] (0: the system picks a free one)."""
-    value = _number(text, int, "an integer in [0, 65535]")
-    if not 0 <= value <= 65535:
-        raise argparse.ArgumentTypeError(f"{text!r} must be an integer in [0, 65535]")
-    return value
+    return _within(text, int, lambda v: 0 <= v <= 65535, "an integer in [0, 65535]")
 
 
 def finite_float(text: str) -> float:

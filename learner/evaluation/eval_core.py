@@ -13,6 +13,7 @@ from common.offscreen_gl import choose_offscreen_gl  # noqa: E402
 choose_offscreen_gl()
 
 import dataclasses
+import json
 import multiprocessing
 from dataclasses import dataclass
 from pathlib import Path
@@ -317,3 +318,11 @@ def names_executor(argv: list[str], checkpoint_option: str) -> bool:
         return load(paths[0]).cfg.task.name == "executor"
     except SystemExit:
         return False
+
+
+def write_ablation(out: Path, text: str, arms: list[dict[str, Any]]) -> None:
+    """An ablation command's outputs: the markdown table `out/ablation.md`, one JSON entry per
+    arm in `out/ablation.json`, and the table printed."""
+    (out / "ablation.md").write_text(text)
+    (out / "ablation.json").write_text(json.dumps(arms, indent=1) + "\n")
+    print(text)

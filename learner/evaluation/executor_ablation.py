@@ -112,11 +112,8 @@ def main(argv: list[str]) -> int:
         "objective is \"crucial to training\" (8.2) and, like reactive state initialization, is ablated only visually "
         "(the paper's video).", "",
     ])
-    (out / "ablation.md").write_text(text)
-    (out / "ablation.json").write_text(json.dumps(
-        [{"name": r["meta"]["name"], "settings": settings(r["loaded"].cfg), "meta": r["meta"], "summary": r["summary"]}
-         for r in rows], indent=1) + "\n")
-    print(text)
+    eval_core.write_ablation(out, text, [{"name": r["meta"]["name"], "settings": settings(r["loaded"].cfg), "meta": r["meta"],
+                                          "summary": r["summary"]} for r in rows])
     return 0
 
 

@@ -3,21 +3,29 @@
 # Each run continues from runs/<name> if it has a checkpoint there, else from the checkpoint kept
 # here; a run listed in FRESH may start from nothing when neither exists (any other run stops
 # with an error rather than silently start over).
+# A run is either `learner.main ...` or `learner.curriculum --stages ... -- ...` (the curriculum
+# skips the stages its checkpoint has passed; a checkpoint kept here is a fork it counts from).
 # Usage: bash learner/pretrained/in-progress/resume.sh [name ...]   (default: every run listed below)
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
 HERE=learner/pretrained/in-progress
+# issue 23 item 5 / issue 20 item 3: the lower biped from nothing on the smoothed, lifted reference,
+# the paper's 10 x 128 minibatches against 10 x 512 (step size x2, the square root of the batch ratio)
+LB5_STAGES="0.25:2M 0.5:5M 0.75:10M 1:20M"
+LB5="--preset lower_biped --ppo.gamma 0.99 --task.imitate.retarget-root-height contact_smooth --task.imitate.retarget-body-clearance-m 0.01"
 declare -A ARGS=(
-  [qabl-adaptive]="--preset quadruped --ppo.gamma 0.99 --total-env-steps 7300000 --mode serial"
-  [qabl-uniform]="--preset quadruped-uniform --ppo.gamma 0.99 --total-env-steps 7300000 --mode serial"
-  [qabl-nonorm]="--preset quadruped-nonorm --ppo.gamma 0.99 --total-env-steps 7300000 --mode serial"
-  [qabl-fixedshape]="--preset quadruped-fixedshape --ppo.gamma 0.99 --total-env-steps 7300000 --mode serial"
-  [manta-course]="--preset manta --mode serial"
-  [manta-nocourse]="--preset manta --task.imitate.no-observe-course --mode serial"
-  [executor-torque]="--preset executor --mode serial"
-  [executor-pd-cont]="--preset executor-pd --mode serial"
+  [qabl-adaptive]="learner.main --preset quadruped --ppo.gamma 0.99 --total-env-steps 7300000 --mode serial"
+  [qabl-uniform]="learner.main --preset quadruped-uniform --ppo.gamma 0.99 --total-env-steps 7300000 --mode serial"
+  [qabl-nonorm]="learner.main --preset quadruped-nonorm --ppo.gamma 0.99 --total-env-steps 7300000 --mode serial"
+  [qabl-fixedshape]="learner.main --preset quadruped-fixedshape --ppo.gamma 0.99 --total-env-steps 7300000 --mode serial"
+  [manta-course]="learner.main --preset manta --mode serial"
+  [manta-nocourse]="learner.main --preset manta --task.imitate.no-observe-course --mode serial"
+  [executor-torque]="learner.main --preset executor --mode serial"
+  [executor-pd-cont]="learner.main --preset executor-pd --mode serial"
+  [lb5-mb128]="learner.curriculum --stages $LB5_STAGES -- $LB5 --mode serial"
+  [lb5-mb512]="learner.curriculum --stages $LB5_STAGES -- $LB5 --ppo.minibatch 512 --ppo.lr 2e-4 --mode serial"
 )
-FRESH=(manta-course)
+FRESH=(manta-course lb5-mb128 lb5-mb512)
 names=("$@")
 [ ${#names[@]} -eq 0 ] && names=(qabl-nonorm qabl-fixedshape manta-course executor-torque executor-pd-cont)
 declare -A FROM=()
@@ -32,6 +40,6 @@ done
 mkdir -p runs
 for name in "${names[@]}"; do
   # shellcheck disable=SC2086
-  nohup nice -n 5 python -m learner.main ${ARGS[$name]} --name "$name" --resume "${FROM[$name]}" --quiet >> "runs/$name.out" 2>&1 &
+  nohup nice -n 5 python -m ${ARGS[$name]} --name "$name" --resume "${FROM[$name]}" --quiet >> "runs/$name.out" 2>&1 &
   echo "resumed $name from ${FROM[$name]} (pid $!)"
 done
