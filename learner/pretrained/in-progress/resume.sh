@@ -5,7 +5,8 @@
 # with an error rather than silently start over).
 # A run is either `learner.main ...` or `learner.curriculum --stages ... -- ...` (the curriculum
 # skips the stages its checkpoint has passed; a checkpoint kept here is a fork it counts from).
-# Usage: bash learner/pretrained/in-progress/resume.sh [name ...]   (default: every run listed below)
+# Usage: bash learner/pretrained/in-progress/resume.sh [--dry-run] [name ...]   (default: every run listed below)
+#   --dry-run: print each run's command (one line each) instead of starting it
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
 HERE=learner/pretrained/in-progress
@@ -26,6 +27,8 @@ declare -A ARGS=(
   [lb5-mb512]="learner.curriculum --stages $LB5_STAGES -- $LB5 --ppo.minibatch 512 --ppo.lr 2e-4 --mode serial"
 )
 FRESH=(manta-course lb5-mb128 lb5-mb512)
+DRY=0
+if [ "${1:-}" = "--dry-run" ]; then DRY=1; shift; fi
 names=("$@")
 [ ${#names[@]} -eq 0 ] && names=(qabl-nonorm qabl-fixedshape manta-course executor-torque executor-pd-cont)
 declare -A FROM=()
@@ -37,6 +40,10 @@ for name in "${names[@]}"; do  # every name checked before anything starts
   else echo "resume.sh: run '$name' has no checkpoint in runs/$name/ckpt nor $HERE/$name/state.pt" >&2; exit 2
   fi
 done
+if [ $DRY = 1 ]; then
+  for name in "${names[@]}"; do echo "python -m ${ARGS[$name]} --name $name --resume ${FROM[$name]} --quiet"; done
+  exit 0
+fi
 mkdir -p runs
 for name in "${names[@]}"; do
   # shellcheck disable=SC2086
