@@ -15,10 +15,6 @@ HERE=learner/pretrained/in-progress
 LB5_STAGES="0.25:2M 0.5:5M 0.75:10M 1:20M"
 LB5="--preset lower_biped --ppo.gamma 0.99 --task.imitate.retarget-root-height contact_smooth --task.imitate.retarget-body-clearance-m 0.01"
 declare -A ARGS=(
-  [qabl-adaptive]="learner.main --preset quadruped --ppo.gamma 0.99 --total-env-steps 7300000 --mode serial"
-  [qabl-uniform]="learner.main --preset quadruped-uniform --ppo.gamma 0.99 --total-env-steps 7300000 --mode serial"
-  [qabl-nonorm]="learner.main --preset quadruped-nonorm --ppo.gamma 0.99 --total-env-steps 7300000 --mode serial"
-  [qabl-fixedshape]="learner.main --preset quadruped-fixedshape --ppo.gamma 0.99 --total-env-steps 7300000 --mode serial"
   [manta-course]="learner.main --preset manta --mode serial"
   [manta-nocourse]="learner.main --preset manta --task.imitate.no-observe-course --mode serial"
   [executor-torque]="learner.main --preset executor --mode serial"
@@ -30,7 +26,7 @@ FRESH=(manta-course lb5-mb128 lb5-mb512)
 DRY=0
 if [ "${1:-}" = "--dry-run" ]; then DRY=1; shift; fi
 names=("$@")
-[ ${#names[@]} -eq 0 ] && names=(qabl-nonorm qabl-fixedshape manta-course executor-torque executor-pd-cont)
+[ ${#names[@]} -eq 0 ] && names=(lb5-mb128 lb5-mb512 manta-course executor-torque executor-pd-cont)
 declare -A FROM=()
 for name in "${names[@]}"; do  # every name checked before anything starts
   [ -n "${ARGS[$name]+x}" ] || { echo "resume.sh: unknown run '$name'; choose one of ${!ARGS[*]}" >&2; exit 2; }

@@ -247,6 +247,23 @@ def test_ablation_says_whether_the_papers_two_effects_reproduce(norm_falls, nono
     for phrase in says:
         assert phrase in text, text
     assert "lower_biped, reward normalization: not compared" in "\n".join(ablation.effects(rows))
+    assert "by the task's rule" in text and "task achievement" not in text.split("the paper:")[0]  # no achievement given
+
+
+def test_normalizations_effect_on_task_achievement_is_relative_and_the_paper_rule_says_no_task_rule() -> None:
+    from types import SimpleNamespace
+
+    from learner.evaluation import ablation
+
+    def row(preset: str, achievement: float, rule: str) -> dict:
+        return {"loaded": SimpleNamespace(cfg=PRESETS[preset][1]), "meta": {"fall_rule": rule},
+                "summary": {"fall_down_pct": 12.0, "fall_down_pct_paper_rule": 30.0, "task_achievement": achievement}}
+
+    line = ablation.effects([row("quadruped", 1397.6, "task"), row("quadruped-nonorm", 1247.3, "task")])[0]
+    assert "task achievement 12% higher with it (1397.6 against 1247.3)" in line, line
+    assert "by the task's rule 12.0% and 12.0%" in line, line
+    line = ablation.effects([row("quadruped", 900.0, "paper"), row("quadruped-nonorm", 1000.0, "paper")])[0]
+    assert "task achievement 10% lower with it" in line and "task's rule" not in line, line
 
 
 def test_a_map_that_is_more_even_only_in_its_worst_cell_is_called_so() -> None:
