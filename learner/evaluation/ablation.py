@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -144,7 +145,8 @@ def _achievement(with_norm: dict, without: dict) -> str:
     against 218.9 on the lower biped, 427.5 against 338.2 on the quadruped); "" if either is
     missing or the arm without has none."""
     a, b = (x["summary"].get("task_achievement") for x in (with_norm, without))
-    if a is None or b is None or not b > 0:
+    numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in (a, b))
+    if not numbers or not b > 0:  # results.json files written elsewhere may lack the figure or hold anything
         return ""
     change = 100.0 * (a / b - 1.0)
     return f", task achievement {abs(change):.0f}% {'higher' if change >= 0 else 'lower'} with it ({a:.1f} against {b:.1f})"

@@ -264,6 +264,9 @@ def test_normalizations_effect_on_task_achievement_is_relative_and_the_paper_rul
     assert "by the task's rule 12.0% and 12.0%" in line, line
     line = ablation.effects([row("quadruped", 900.0, "paper"), row("quadruped-nonorm", 1000.0, "paper")])[0]
     assert "task achievement 10% lower with it" in line and "task's rule" not in line, line
+    for bad in ("1397.6", None, float("nan"), True):  # a results.json from elsewhere: no figure rather than a crash
+        line = ablation.effects([row("quadruped", 1397.6, "task"), row("quadruped-nonorm", bad, "task")])[0]
+        assert "task achievement" not in line.split("the paper:")[0], line
 
 
 def test_a_map_that_is_more_even_only_in_its_worst_cell_is_called_so() -> None:
