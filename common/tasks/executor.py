@@ -15,7 +15,8 @@ DeepMimic humanoid, over a whole clip library.
 - Reactive state initialization (UniCon 5.2): the character starts 5-10 control steps away from
   the tracked frame with noise on root translation and velocities (switchable). In training the
   termination rule waits `catch_up_steps` (30) control steps after a start or a reschedule (a
-  reconstruction, see `ExecutorConfig.catch_up_steps`); evaluation applies it from the start.
+  reconstruction, see `ExecutorConfig.catch_up_steps`), or, with `catch_up_ends = "on_track"`,
+  until every watched term is back above alpha; evaluation applies it from the start.
 - 60 Hz control with 4 substeps (240 Hz physics), as UniCon (`executor` preset).
 
 The humanoid's shape parameters are the episode parameters (collapsed to the base shape while
@@ -341,6 +342,8 @@ class ExecutorEnv:
         self.last_terms = terms
         reward = rw.weighted_sum(terms, self.ex.reward_weights)
         ended_by = rw.termination(terms, self.ex.reward_weights, self.ex.termination, self.ex.alpha, self.ex.terminate_on)
+        if ended_by is None and self.k < self.grace and self.ex.catch_up_ends == "on_track":
+            self.grace = self.k  # caught up: the rule applies from the next step
         terminated = ended_by is not None and self.k > self.grace
         truncated = not terminated and (self.k >= self.cfg.episode_steps or self.scheduler.done)
         info = {"diverged": False, "terms": terms, "ended_by": ended_by if terminated else None,

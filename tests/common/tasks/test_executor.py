@@ -304,6 +304,42 @@ def test_termination_waits_for_the_catch_up_steps():
     assert term and k > 12
 
 
+def test_on_track_ends_the_wait_once_every_watched_term_is_above_alpha():
+    """From the tracked frame exactly every pose term starts above alpha: with "on_track" the
+    wait ends on the first step, so a ragdoll's episode ends as soon as a watched term breaks,
+    long before the 30 steps after which the default wait lets the rule act."""
+    ends = {}
+    for mode in ("after_steps", "on_track"):
+        env = make_env(cfg_with(reactive_init=False, catch_up_steps=30, catch_up_ends=mode,
+                                terminate_on=rw.POSE_TERMS), seed=0)
+        env.reset(0, env.space.default_array)
+        for k in range(1, 120):
+            _, _, term, trunc, info = env.step(np.zeros(env.act_dim))
+            if k == 1:
+                assert min(info["terms"][t] for t in rw.POSE_TERMS) >= 0.1  # on track at the start
+            if term or trunc:
+                break
+        assert term
+        ends[mode] = k
+    assert ends["after_steps"] > 30
+    assert ends["on_track"] < 30
+
+
+def test_on_track_keeps_the_wait_while_a_term_is_below_alpha():
+    """A start a metre off the tracked frame's root breaks the root-position term at once: the
+    wait then still holds the rule back, as with "after_steps", until the 30 steps are over."""
+    env = make_env(cfg_with(reactive_init=False, catch_up_steps=30, catch_up_ends="on_track"), seed=0)
+    env.reset(0, env.space.default_array)
+    env.data.qpos[0] += 1.0
+    for k in range(1, 120):
+        _, _, term, trunc, info = env.step(np.zeros(env.act_dim))
+        if k <= 30:
+            assert info["terms"]["root_position"] < 0.1 and not term and env.grace == 30
+        if term or trunc:
+            break
+    assert term and k == 31
+
+
 def test_the_watched_terms_decide_what_ends_an_episode():
     """The same zero-torque start under both watch sets: with all five terms the episode ends
     on the first term below alpha; with the pose terms only it never ends on joint_velocity."""
