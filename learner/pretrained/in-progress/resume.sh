@@ -14,18 +14,22 @@ HERE=learner/pretrained/in-progress
 # 10 x 512 minibatches was stopped at 2 M: docs/benchmarks.md)
 LB5_STAGES="0.25:2M 0.5:5M 0.75:10M 1:20M"
 LB5="--preset lower_biped --ppo.gamma 0.99 --task.imitate.retarget-root-height contact_smooth --task.imitate.retarget-body-clearance-m 0.01"
+# issue 23 item 4: the full 19-segment biped, the same reference rule, a longer curriculum (legs x0.5-2.0)
+BIPED_STAGES="0.25:2M 0.5:6M 0.75:12M 1:30M"
+BIPED="--preset biped --ppo.gamma 0.99 --task.imitate.retarget-root-height contact_smooth --task.imitate.retarget-body-clearance-m 0.01"
 declare -A ARGS=(
   [manta-course]="learner.main --preset manta --mode serial"
   [manta-nocourse]="learner.main --preset manta --task.imitate.no-observe-course --mode serial"
   [executor-torque]="learner.main --preset executor --mode serial"
   [executor-pd-cont]="learner.main --preset executor-pd --mode serial"
   [lb5-mb128]="learner.curriculum --stages $LB5_STAGES -- $LB5 --mode serial"
+  [biped-curr]="learner.curriculum --stages $BIPED_STAGES -- $BIPED --mode serial"
 )
-FRESH=(manta-course lb5-mb128)
+FRESH=(manta-course lb5-mb128 biped-curr)
 DRY=0
 if [ "${1:-}" = "--dry-run" ]; then DRY=1; shift; fi
 names=("$@")
-[ ${#names[@]} -eq 0 ] && names=(lb5-mb128 manta-course executor-torque executor-pd-cont)
+[ ${#names[@]} -eq 0 ] && names=(lb5-mb128 biped-curr manta-course executor-torque executor-pd-cont)
 declare -A FROM=()
 for name in "${names[@]}"; do  # every name checked before anything starts
   [ -n "${ARGS[$name]+x}" ] || { echo "resume.sh: unknown run '$name'; choose one of ${!ARGS[*]}" >&2; exit 2; }
