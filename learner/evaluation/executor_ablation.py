@@ -26,14 +26,18 @@ from learner.evaluation import cli_args, eval_core, executor_eval as xe, executo
 
 
 def settings(cfg) -> str:
-    """The four ablated settings of an arm, in the table's words."""
+    """The four ablated settings of an arm, in the table's words, and the training wait's end
+    when it is not the default."""
     ex = cfg.task.executor
-    return " · ".join([
+    words = [
         ex.actuation,
         {"per_term": "per-term", "sum": "sum rule", "none": "no termination"}.get(ex.termination, ex.termination),
         "balancer" if ex.clip_draws == "balancer" else "uniform draws",
         "reactive init" if ex.reactive_init else "no reactive init",
-    ])
+    ]
+    if getattr(ex, "catch_up_ends", "after_steps") == "on_track":
+        words.append("wait ends on track")
+    return " · ".join(words)
 
 
 def evaluate_arm(ckpt: str, out: Path, folder: str, p: argparse.ArgumentParser, args: argparse.Namespace) -> dict:

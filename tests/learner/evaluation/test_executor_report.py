@@ -117,3 +117,17 @@ def test_ablation_refuses_to_mix_executor_and_shape_checkpoints(tmp_path: Path, 
     with pytest.raises(SystemExit) as exc:
         ablation.main(["--checkpoints", str(tmp_path / "walker"), str(arm), "--out", str(tmp_path / "abl")])
     assert exc.value.code == 2 and "executor checkpoints" in capsys.readouterr().err
+
+
+def test_ablation_settings_name_the_wait_only_when_it_ends_on_track() -> None:
+    import dataclasses
+
+    from learner.config import RunConfig
+    from learner.evaluation.executor_ablation import settings
+    from learner.presets import PRESETS
+
+    cfg: RunConfig = PRESETS["executor-pd"][1]
+    assert settings(cfg) == "pd · per-term · balancer · reactive init"
+    ex = dataclasses.replace(cfg.task.executor, catch_up_ends="on_track")
+    on_track = dataclasses.replace(cfg, task=dataclasses.replace(cfg.task, executor=ex))
+    assert settings(on_track) == "pd · per-term · balancer · reactive init · wait ends on track"
