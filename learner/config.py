@@ -7,7 +7,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from dataclasses import dataclass, field
-from typing import ClassVar, Literal
+from typing import ClassVar, Literal, get_args, get_origin, get_type_hints
 
 from actors.config import ActorConfig
 from common.config_limits import Limit, above, at_least, between, check_limits, validated
@@ -203,4 +203,10 @@ def _from_dict(cls: type, raw: dict):
         elif isinstance(v, list):
             v = tuple(tuple(x) if isinstance(x, list) else x for x in v)
         kwargs[k] = v
-    return cls(**kwargs)
+    cfg = cls(**kwargs)  # the class's own checks first (their messages are more specific)
+    prefix = getattr(cls, "FLAG_PREFIX", "")
+    for name, hint in get_type_hints(cls).items():  # then every Literal field: one of its choices (tyro checks flags)
+        if get_origin(hint) is Literal and getattr(cfg, name) not in get_args(hint):
+            raise ValueError(f"--{prefix + '.' if prefix else ''}{name.replace('_', '-')} = {getattr(cfg, name)!r} "
+                             f"is not one of {', '.join(map(str, get_args(hint)))}")
+    return cfg

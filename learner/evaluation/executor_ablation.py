@@ -35,7 +35,7 @@ def settings(cfg) -> str:
         "balancer" if ex.clip_draws == "balancer" else "uniform draws",
         "reactive init" if ex.reactive_init else "no reactive init",
     ]
-    if getattr(ex, "catch_up_ends", "after_steps") == "on_track":
+    if ex.catch_up_ends == "on_track":
         words.append("wait ends on track")
     return " · ".join(words)
 

@@ -4,6 +4,7 @@ allowed, exit code 2, and no run folder (issue 22, item 1)."""
 from __future__ import annotations
 
 import dataclasses
+import re
 import subprocess
 import sys
 import typing
@@ -104,3 +105,17 @@ def test_a_saved_config_of_the_wrong_type_is_a_value_error_naming_it(edit) -> No
         RunConfig.from_json(json.dumps(raw))
     with pytest.raises(ValueError, match="expected a JSON object"):
         RunConfig.from_json("[1, 2]")
+
+
+@pytest.mark.parametrize("section, field, bad", [
+    ("executor", "catch_up_ends", "soon"), ("executor", "actuation", 3), (None, "mode", ["serial"]),
+])
+def test_a_saved_config_with_a_choice_it_does_not_offer_is_refused_by_name(section, field, bad) -> None:
+    import json
+
+    raw = json.loads(RunConfig().to_json())
+    where = raw if section is None else raw["task"][section]
+    where[field] = bad
+    flag = ("--" if section is None else f"--task.{section}.") + field.replace("_", "-")
+    with pytest.raises(ValueError, match=rf"{re.escape(flag)} = .* is not one of"):
+        RunConfig.from_json(json.dumps(raw))
