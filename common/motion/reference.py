@@ -100,11 +100,23 @@ class CharacterMotion:
 
     def qvel(self, t_s: float, h_s: float | None = None) -> np.ndarray:
         """Reference qvel (nv,) at t_s: `mj_differentiatePos` of qpos(t - h) -> qpos(t + h)."""
-        h = 0.5 / self.frames.fps if h_s is None else h_s
-        lo = t_s - h if self.frames.loop else float(np.clip(t_s - h, 0.0, max(self.duration_s - 2 * h, 0.0)))
-        q = self.qpos(np.array([lo, lo + 2 * h]))
-        out = np.zeros(self.model.nv)
-        mujoco.mj_differentiatePos(self.model, out, 2 * h, q[0], q[1])
+        return self.qvel_at(np.array([t_s], dtype=np.float64), h_s)[0]
+
+    def qvel_at(self, t_s: np.ndarray, h_s: float | None = None) -> np.ndarray:
+        """Reference qvel `[N, nv]` (per second of clip time) at the times `t_s` `[N]`: the
+        difference of qpos(t - h) -> qpos(t + h). A clip that does not loop holds its first and
+        last frames outside its span, so there the window slides inside the clip (a one-sided
+        difference at the ends, and the end's velocity for times beyond them): a centred window
+        would see half the motion at the first and last frames."""
+        h = 0.5 / self.frames.fps if h_s is None else float(h_s)
+        t = np.atleast_1d(np.asarray(t_s, dtype=np.float64))
+        lo = t - h if self.frames.loop else np.clip(t - h, 0.0, max(self.duration_s - 2 * h, 0.0))
+        span = np.full(len(t), 2 * h) if self.frames.loop else np.minimum(lo + 2 * h, self.duration_s) - lo
+        qa, qb = np.atleast_2d(self.qpos(lo)), np.atleast_2d(self.qpos(lo + span))
+        out = np.zeros((len(t), self.model.nv))
+        for i in range(len(t)):
+            if span[i] > 0:
+                mujoco.mj_differentiatePos(self.model, out[i], float(span[i]), qa[i], qb[i])
         return out
 
     def positions(self, qpos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -104,8 +104,9 @@ class DatasetScheduler:
     The frames of the current schedule are sampled once on the control grid t0 + k dt speed
     (vectorized: per-step slerps in Python would cost more than the physics), from
     `lookback` steps before the start to the clip's end plus the lookahead; velocities are
-    centred differences of neighbouring rows (`mj_differentiatePos`), in real time, so a
-    faster playback has faster targets.
+    differences over +-1 control step (`CharacterMotion.qvel_at`: centred inside the clip,
+    one-sided at its first and last frames), in real time, so a faster playback has faster
+    targets.
     """
 
     def __init__(self, model: mujoco.MjModel, motion: MotionFn, clip_ids: Sequence[str], probabilities: np.ndarray,
@@ -156,11 +157,12 @@ class DatasetScheduler:
         steps_left = int(math.floor((duration - start_s) / (self.dt * self.speed) + 1e-9))
         self.last_k = max(steps_left, 1)
         rows = np.arange(-self.lookback - 1, self.last_k + self.lookahead + 2)
-        q = np.atleast_2d(m.qpos(self.t0 + rows * self.dt * self.speed))
-        v = np.zeros((len(rows), self.model.nv))
-        for r in range(1, len(rows) - 1):
-            mujoco.mj_differentiatePos(self.model, v[r], 2.0 * self.dt, q[r - 1], q[r + 1])
-        v[0], v[-1] = v[1], v[-2]
+        times = self.t0 + rows * self.dt * self.speed
+        q = np.atleast_2d(m.qpos(times))
+        # NOTE: differences over +-1 control step of clip time, inside the clip at its ends (where
+        # a centred window over the held first/last frame saw half the motion: a run's start
+        # frame got half its speed); times clip time per real second.
+        v = m.qvel_at(times, self.dt * self.speed) * self.speed
         yaw, shift = 0.0, np.zeros(3)
         if align_to is not None:
             start = q[self.lookback + 1]

@@ -130,6 +130,29 @@ def test_dataset_scheduler_reschedules_on_deviation(env):
         DatasetScheduler(env.ref_model, env._motion, [clip], np.ones(1), env.dt, max_deviation_m=-1.0)
 
 
+@pytest.mark.parametrize("speed", [1.0, 1.5])
+def test_dataset_velocities_are_whole_at_the_clips_first_and_last_frames(env, speed):
+    """At a clip's first and last frames the target velocity is the difference over two control
+    steps inside the clip (one-sided), as inside it (centred); a centred window over the held
+    end frame gave half of it (a run's start frame got half its speed)."""
+    run = "humanoid3d_run"
+    s = DatasetScheduler(env.ref_model, env._motion, [run], np.ones(1), env.dt, speed=speed, at_end="stop")
+    s.begin(np.random.default_rng(0), run, 0.0)
+
+    def velocity(i, j):  # (qpos of frame j - qpos of frame i) per second, MuJoCo's tangent space
+        v = np.zeros(env.nv)
+        mujoco.mj_differentiatePos(env.ref_model, v, (j - i) * env.dt, s.frame(i).qpos, s.frame(j).qpos)
+        return v
+
+    np.testing.assert_allclose(s.frame(0).qvel, velocity(0, 2), atol=1e-9)
+    assert s.frame(0).qvel[0] > 2.5 * speed  # the run's forward speed (m/s), not half of it
+    np.testing.assert_allclose(s.frame(10).qvel, velocity(9, 11), atol=1e-9)
+    k = s.last_k  # the last frame the schedule reaches (at or just before the clip's end)
+    end_s = s.status()["clip_duration_s"]
+    assert s.t0 + k * env.dt * speed <= end_s + 1e-9
+    assert s.frame(k).qvel[0] > 0.75 * velocity(k - 2, k)[0] > 1.0
+
+
 # ---- stitch ----
 
 def stitched(env, transition_s: float, steps: int = 200):
