@@ -102,6 +102,19 @@ def make_policy(loaded: Loaded, obs_dim: int, act_dim: int) -> GaussianPolicy:
     return policy
 
 
+class ZeroPolicy:
+    """Acts with zero actions, the baseline a trained policy is measured against: for a PD task
+    the character's PD on the reference itself (a zero deviation from the target pose), for a
+    torque task no torque."""
+
+    def __init__(self, act_dim: int) -> None:
+        self.act_dim = int(act_dim)
+
+    def act(self, obs_raw: np.ndarray, deterministic: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        n = len(obs_raw)
+        return np.zeros((n, self.act_dim), np.float32), np.zeros(n, np.float32)
+
+
 def eval_shapes(space, n: int, seed: int) -> np.ndarray:
     """`[n, dim]` uniform draws over the task's full parameter box from a fixed seed."""
     return space.uniform(np.random.default_rng(seed), n)

@@ -312,11 +312,12 @@ def run_episode(env, policy, clip_id: str, start_s: float, own_rule: str, seed: 
 _WORKER: dict[str, Any] = {}
 
 
-def _init_worker(state_file: str, clips: list[EvalClip], perturbation: Perturbation) -> None:
+def _init_worker(state_file: str, clips: list[EvalClip], perturbation: Perturbation, zero_action: bool = False) -> None:
     torch.set_num_threads(1)
     loaded = eval_core.load(state_file)
     env = make_eval_env(loaded, clips, perturbation)
-    _WORKER.update(env=env, policy=eval_core.make_policy(loaded, env.obs_dim, env.act_dim),
+    policy = eval_core.ZeroPolicy(env.act_dim) if zero_action else eval_core.make_policy(loaded, env.obs_dim, env.act_dim)
+    _WORKER.update(env=env, policy=policy,
                    rule=loaded.cfg.task.executor.termination, perturbation=perturbation)
 
 
@@ -338,14 +339,15 @@ def episode_jobs(clips: list[EvalClip], durations: dict[str, float], starts: int
 
 def evaluate(loaded: eval_core.Loaded, clips: list[EvalClip], starts: int, workers: int = 1,
              perturbation: Perturbation = Perturbation(), progress: Callable[[int, int], None] | None = None,
-             durations: dict[str, float] | None = None) -> list[dict[str, Any]]:
+             durations: dict[str, float] | None = None, zero_action: bool = False) -> list[dict[str, Any]]:
     """One episode per (clip, start) (`episode_jobs`), each record tagged with its clip's label
     and split, in job order. `durations` (clip time, s) fixes the start frames; by default they
-    are read from an environment at normal speed, so every perturbation row starts the same frames."""
+    are read from an environment at normal speed, so every perturbation row starts the same frames.
+    `zero_action`: act with zeros instead of the checkpoint's policy (`eval_core.ZeroPolicy`)."""
     if durations is None:
         durations = clip_durations(make_eval_env(loaded, clips), clips)
     jobs = episode_jobs(clips, durations, starts)
-    init = (str(loaded.path), list(clips), perturbation)
+    init = (str(loaded.path), list(clips), perturbation, zero_action)
     results = eval_core.run_jobs(_init_worker, init, _work, jobs, workers, progress)
     by_id = {c.clip_id: c for c in clips}
     for r in results:

@@ -5,6 +5,7 @@ split (METHOD.md B "Evaluation"), with files and pictures.
     morphmimic evaluate --checkpoint runs/executor                       # every humanoid clip, 10 starts each
     morphmimic evaluate --checkpoint runs/executor --clips humanoid3d_cartwheel humanoid3d_walk --starts 3
     morphmimic evaluate --checkpoint runs/executor --clips my_clips/ take.bvh --workers 2 --no-render
+    morphmimic evaluate --checkpoint runs/executor --zero-action          # the same episodes with zero actions: the baseline
 
 --clips takes clip ids, clip files (.npz, .bvh onto the humanoid, DeepMimic .txt) and folders
 of `.npz` clips; the default is every humanoid clip, tagged with its split of the checkpoint's
@@ -36,6 +37,8 @@ from typing import Any
 
 from learner.evaluation import cli_args, eval_core, eval_plots, executor_eval as xe
 
+ZERO_NOTE = ("**zero actions, not the policy** (`--zero-action`: for PD targets the humanoid's PD on the reference "
+             "itself, for torques no torque; the baseline that shows what the policy adds)")
 SPLIT_COLOURS = {"train": "#3b75af", "test": "#ef8636", "unused": "#9e9e9e", "imported": "#519e3e"}
 
 
@@ -50,6 +53,10 @@ def parser(prog: str = "morphmimic evaluate") -> argparse.ArgumentParser:
     p.add_argument("--out", default="", help="output directory (default: <checkpoint dir>/eval_clips)")
     p.add_argument("--no-render", action="store_true", help="skip the best/worst clip strips")
     p.add_argument("--gif", action="store_true", help="also write GIFs of the best and worst clip")
+    p.add_argument("--zero-action", action="store_true",
+                   help="act with zero actions instead of the policy (a PD executor: the humanoid's PD on the reference "
+                        "itself; torque: no torque), the baseline that shows what the policy adds; default --out "
+                        "<checkpoint dir>/eval_clips_zero_action")
     return p
 
 
@@ -101,7 +108,8 @@ def markdown(loaded: eval_core.Loaded, summary: dict, meta: dict, files: list[st
         f"Checkpoint `{loaded.path}` (iteration {meta['iteration']}, {meta['env_steps']:,d} env steps); trained with "
         f"{describe(loaded.cfg)}.", "",
         f"Protocol: {summary['overall']['clips']} clips x {meta['starts']} start frames each (evenly over the clip's "
-        f"first {100 * xe.START_SPAN:.0f}%), starting on the tracked frame (no reactive initialization), mean action, "
+        f"first {100 * xe.START_SPAN:.0f}%), starting on the tracked frame (no reactive initialization), "
+        f"{ZERO_NOTE if meta.get('actions') == 'zero' else 'mean action'}, "
         "the episode truncated at the clip's end. One run per episode with termination off; each criterion is read "
         "off that trajectory (termination only cuts an episode, it does not change it):", "",
         f"- **success**: tracked to the clip's end with no reward term below alpha = {loaded.cfg.task.executor.alpha:g} "
@@ -197,9 +205,11 @@ def best_and_worst(summary: dict) -> tuple[str, str]:
 
 
 def evaluate_checkpoint(loaded: eval_core.Loaded, clips: list[xe.EvalClip], starts: int, workers: int, out: Path,
-                        render: bool = False, gif: bool = False, log: str = "evaluate") -> dict[str, Any]:
+                        render: bool = False, gif: bool = False, log: str = "evaluate", zero_action: bool = False,
+                        ) -> dict[str, Any]:
     """Run the evaluation and write results.json, summary.md, clips.png (and the strips);
-    returns {"meta", "summary", "episodes", "files"}."""
+    returns {"meta", "summary", "episodes", "files"}. `zero_action`: the zero-action baseline
+    in the checkpoint's task instead of its policy (no strips: they film the policy)."""
     out.mkdir(parents=True, exist_ok=True)
     t0, last = time.monotonic(), [0.0]
 
@@ -208,19 +218,20 @@ def evaluate_checkpoint(loaded: eval_core.Loaded, clips: list[xe.EvalClip], star
             last[0] = time.monotonic()
             print(f"[{log}] {loaded.name}: {done}/{total} episodes, {time.monotonic() - t0:.0f} s", flush=True)
 
-    records = xe.evaluate(loaded, clips, starts, workers, progress=progress)
+    records = xe.evaluate(loaded, clips, starts, workers, progress=progress, zero_action=zero_action)
     summary = xe.summarize(records, clips)
     meta = {"checkpoint": str(loaded.path), "name": loaded.name, "task": "executor",
             "iteration": int(loaded.state.get("iteration", 0)), "env_steps": int(loaded.state.get("env_steps", 0)),
             "training": describe(loaded.cfg), "termination": loaded.cfg.task.executor.termination,
             "alpha": loaded.cfg.task.executor.alpha, "starts": starts, "start_span": xe.START_SPAN,
             "phc_threshold_m": xe.PHC_THRESHOLD_M, "clips": [c.clip_id for c in clips],
-            "sources": {c.clip_id: c.source for c in clips if c.source}, "wall_s": time.monotonic() - t0}
+            "sources": {c.clip_id: c.source for c in clips if c.source}, "wall_s": time.monotonic() - t0,
+            "actions": "zero" if zero_action else "mean"}
     result = {"meta": meta, "summary": summary, "episodes": records}
     (out / "results.json").write_text(json.dumps(result, indent=1) + "\n")
     files = [str(out / "results.json"), str(plot_clips(summary, out / "clips.png",
                                                        f"{loaded.name}: success per clip ({starts} starts each)"))]
-    if render:
+    if render and not zero_action:
         best, worst = best_and_worst(summary)
         by_id = {c.clip_id: c for c in clips}
         for stem, cid in (("best", best), ("worst", worst)):
@@ -247,12 +258,14 @@ def main(argv: list[str]) -> int:
         p.error(f"--checkpoint {args.checkpoint}: task {loaded.cfg.task.name!r} is not the executor; "
                 "--clips and --starts are executor options")
     clips = select_clips(p, args.clips, loaded)
-    out = Path(args.out) if args.out else loaded.path.parent / "eval_clips"
-    result = evaluate_checkpoint(loaded, clips, args.starts, args.workers, out, render=not args.no_render, gif=args.gif)
+    out = Path(args.out) if args.out else loaded.path.parent / ("eval_clips_zero_action" if args.zero_action else "eval_clips")
+    result = evaluate_checkpoint(loaded, clips, args.starts, args.workers, out, render=not args.no_render, gif=args.gif,
+                                 zero_action=args.zero_action)
     s = result["summary"]
+    name = f"{loaded.name} (zero action)" if args.zero_action else loaded.name
     for group, stats in s["splits"].items():
-        print(line(loaded.name, group, stats))
-    print(line(loaded.name, "all", s["overall"]) + f"; wrote {out}")
+        print(line(name, group, stats))
+    print(line(name, "all", s["overall"]) + f"; wrote {out}")
     return 0
 
 

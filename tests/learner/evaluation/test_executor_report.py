@@ -57,6 +57,31 @@ def test_evaluate_a_folder_of_npz_clips(run_dir: Path, tmp_path: Path) -> None:
     assert not (out / "best.png").exists()
 
 
+def test_zero_action_baseline_runs_the_same_episodes_without_the_policy(run_dir: Path, tmp_path: Path, capsys) -> None:
+    import numpy as np
+
+    from learner.evaluation import eval_core, evaluate, executor_eval as xe
+
+    argv = ["--checkpoint", str(run_dir), "--clips", "humanoid3d_walk", "--starts", "2", "--no-render"]
+    assert evaluate.main([*argv, "--out", str(tmp_path / "policy")]) == 0
+    assert evaluate.main([*argv, "--zero-action"]) == 0  # default --out beside the checkpoint, not over its eval_clips
+    printed = capsys.readouterr().out
+    assert "[evaluate] xtiny (zero action) train:" in printed
+    out = eval_core.load(run_dir).path.parent / "eval_clips_zero_action"
+    zero, policy = (json.loads((d / "results.json").read_text()) for d in (out, tmp_path / "policy"))
+    assert zero["meta"]["actions"] == "zero" and policy["meta"]["actions"] == "mean"
+    assert "zero actions, not the policy" in (out / "summary.md").read_text()
+    assert [e["start_s"] for e in zero["episodes"]] == [e["start_s"] for e in policy["episodes"]]
+    # the baseline is the task under zero actions: the same episode rerun by hand with zeros
+    loaded = eval_core.load(run_dir)
+    clips = xe.resolve_clips(["humanoid3d_walk"], loaded.cfg.task)
+    env = xe.make_eval_env(loaded, clips)
+    by_hand = xe.run_episode(env, eval_core.ZeroPolicy(env.act_dim), "humanoid3d_walk", zero["episodes"][1]["start_s"],
+                             loaded.cfg.task.executor.termination, seed=1)
+    assert by_hand["return"] == pytest.approx(zero["episodes"][1]["return"])
+    assert not np.isclose(zero["episodes"][1]["return"], policy["episodes"][1]["return"])
+
+
 @pytest.mark.parametrize("bad, says", [
     (["--clips", "humanoid3d_nope"], "argument --clips: 'humanoid3d_nope' is no humanoid clip id"),
     (["--clips", "no/such/file.npz"], "argument --clips: file 'no/such/file.npz' does not exist"),
