@@ -21,7 +21,7 @@ declare -A ARGS=(
   [manta-course]="learner.main --preset manta --mode serial"
   [manta-nocourse]="learner.main --preset manta --task.imitate.no-observe-course --mode serial"
   [executor-torque]="learner.main --preset executor --mode serial"
-  [executor-pd-cont]="learner.main --preset executor-pd --mode serial"
+  [executor-pd-g99]="learner.main --preset executor-pd --ppo.gamma 0.99 --mode serial"
   [lb5-mb128]="learner.curriculum --stages $LB5_STAGES -- $LB5 --mode serial"
   [biped-curr]="learner.curriculum --stages $BIPED_STAGES -- $BIPED --mode serial"
 )
@@ -29,7 +29,7 @@ FRESH=(manta-course lb5-mb128 biped-curr)
 DRY=0
 if [ "${1:-}" = "--dry-run" ]; then DRY=1; shift; fi
 names=("$@")
-[ ${#names[@]} -eq 0 ] && names=(lb5-mb128 biped-curr manta-course executor-torque executor-pd-cont)
+[ ${#names[@]} -eq 0 ] && names=(lb5-mb128 biped-curr manta-course executor-torque executor-pd-g99)
 declare -A FROM=()
 for name in "${names[@]}"; do  # every name checked before anything starts
   [ -n "${ARGS[$name]+x}" ] || { echo "resume.sh: unknown run '$name'; choose one of ${!ARGS[*]}" >&2; exit 2; }
