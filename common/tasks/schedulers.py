@@ -159,9 +159,9 @@ class DatasetScheduler:
         rows = np.arange(-self.lookback - 1, self.last_k + self.lookahead + 2)
         times = self.t0 + rows * self.dt * self.speed
         q = np.atleast_2d(m.qpos(times))
-        # NOTE: differences over +-1 control step of clip time, inside the clip at its ends (where
-        # a centred window over the held first/last frame saw half the motion: a run's start
-        # frame got half its speed); times clip time per real second.
+        # NOTE: differences over +-1 control step of clip time, kept inside the clip at its ends
+        # (a centred window over the held first/last frame saw half the motion: a run's start
+        # frame got half its speed); times `speed` (clip seconds per real second): real-time velocities.
         v = m.qvel_at(times, self.dt * self.speed) * self.speed
         yaw, shift = 0.0, np.zeros(3)
         if align_to is not None:

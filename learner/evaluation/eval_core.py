@@ -309,7 +309,7 @@ def summarize(results: list[dict], space, n_shape: int) -> dict[str, Any]:
     }
 
 
-EXECUTOR_ONLY_OPTIONS = ("--clips", "--starts")
+EXECUTOR_ONLY_OPTIONS = ("--clips", "--starts", "--zero-action")
 """Options only the motion executor's evaluation commands take."""
 
 

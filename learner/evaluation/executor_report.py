@@ -55,8 +55,8 @@ def parser(prog: str = "morphmimic evaluate") -> argparse.ArgumentParser:
     p.add_argument("--gif", action="store_true", help="also write GIFs of the best and worst clip")
     p.add_argument("--zero-action", action="store_true",
                    help="act with zero actions instead of the policy (a PD executor: the humanoid's PD on the reference "
-                        "itself; torque: no torque), the baseline that shows what the policy adds; default --out "
-                        "<checkpoint dir>/eval_clips_zero_action")
+                        "itself; torque: no torque), the baseline that shows what the policy adds; no best/worst strips; default "
+                        "--out <checkpoint dir>/eval_clips_zero_action")
     return p
 
 
@@ -256,7 +256,7 @@ def main(argv: list[str]) -> int:
     loaded = eval_core.load(args.checkpoint)
     if loaded.cfg.task.name != "executor":
         p.error(f"--checkpoint {args.checkpoint}: task {loaded.cfg.task.name!r} is not the executor; "
-                "--clips and --starts are executor options")
+                f"{', '.join(eval_core.EXECUTOR_ONLY_OPTIONS)} are executor options")
     clips = select_clips(p, args.clips, loaded)
     out = Path(args.out) if args.out else loaded.path.parent / ("eval_clips_zero_action" if args.zero_action else "eval_clips")
     result = evaluate_checkpoint(loaded, clips, args.starts, args.workers, out, render=not args.no_render, gif=args.gif,

@@ -82,6 +82,16 @@ def test_zero_action_baseline_runs_the_same_episodes_without_the_policy(run_dir:
     assert not np.isclose(zero["episodes"][1]["return"], policy["episodes"][1]["return"])
 
 
+@pytest.mark.parametrize("option", [["--zero-action"], ["--starts", "3"], ["--clips", "humanoid3d_walk"]])
+def test_executor_options_on_a_shape_checkpoint_are_a_usage_error_naming_them(option, capsys) -> None:
+    from learner.evaluation import evaluate
+
+    with pytest.raises(SystemExit) as exc:
+        evaluate.main(["--checkpoint", str(Path(__file__).resolve().parents[3] / "learner/pretrained/fish"), *option])
+    assert exc.value.code == 2
+    assert "task 'fish' is not the executor; --clips, --starts, --zero-action are executor options" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("bad, says", [
     (["--clips", "humanoid3d_nope"], "argument --clips: 'humanoid3d_nope' is no humanoid clip id"),
     (["--clips", "no/such/file.npz"], "argument --clips: file 'no/such/file.npz' does not exist"),
