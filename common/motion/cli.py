@@ -39,11 +39,14 @@ def _resolve(lib, spec: str, character: str | None = None):
     """A clip from a manifest id or a file path (a BVH imported onto `character` when given)."""
     from common.motion.library import import_source
 
-    if spec in lib.ids:
+    from common.motion.mirror import MIRROR_SUFFIX, source_id
+
+    if source_id(spec) in lib.ids:
         return lib.clip(spec)
     if Path(spec).exists():
         return import_source(spec, character=character)
-    raise ClipError(f"neither a clip id of the manifest nor a file; ids: {', '.join(lib.ids)}", path=spec)
+    raise ClipError(f"neither a clip id of the manifest nor a file; ids: {', '.join(lib.ids)} (each also as "
+                    f"<id>{MIRROR_SUFFIX}, its mirror image)", path=spec)
 
 
 def _character(preset: str, args):

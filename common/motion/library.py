@@ -24,6 +24,7 @@ from common.motion.cross_skeleton import guess_skeleton, retarget_bvh
 from common.motion.errors import ClipError
 from common.motion.import_bvh import load_bvh
 from common.motion.import_deepmimic import load_deepmimic
+from common.motion.mirror import check_symmetric, is_mirrored, mirror_clip, source_id
 from common.motion.manifest import DATA_DIR, ClipEntry, Manifest, load_manifest
 from common.motion.reference import CharacterMotion
 from common.motion.retarget import ContactPhases, RetargetConfig, character_feet, contact_phases, play_on
@@ -104,10 +105,13 @@ class MotionLibrary:
 
     def clip(self, clip_id: str) -> Clip:
         """The canonical clip (cached). Besides the manifest's ids, `procedural/<preset>` is the
-        generated gait of the quadruped, fish or manta (procedural.py)."""
+        generated gait of the quadruped, fish or manta (procedural.py), and `<id>~mirror` is a
+        clip's left-right mirror image (mirror.py)."""
         if clip_id not in self._clips:
             npz = self.clips_dir / f"{clip_id}.npz"
-            if clip_id.startswith("procedural/"):
+            if is_mirrored(clip_id):
+                self._clips[clip_id] = self._mirror(source_id(clip_id))
+            elif clip_id.startswith("procedural/"):
                 from common.motion.procedural import GENERATORS
 
                 preset = clip_id.split("/", 1)[1]
@@ -118,6 +122,20 @@ class MotionLibrary:
                 entry = self.manifest.by_id(clip_id)
                 self._clips[clip_id] = load_clip(npz) if npz.exists() else import_entry(entry)
         return self._clips[clip_id]
+
+    def _mirror(self, source: str) -> Clip:
+        """The mirror image of clip `source`, after checking that its character's rest pose is
+        left-right symmetric (`mirror.check_symmetric`)."""
+        import mujoco
+
+        clip = self.clip(source)
+        if not clip.character:
+            raise ClipError("a clip bound to no character cannot be mirrored (its rest pose is unknown)", path=source)
+        model = self.base_character(clip.character).model
+        data = mujoco.MjData(model)
+        mujoco.mj_kinematics(model, data)
+        check_symmetric(model, data)
+        return mirror_clip(clip)
 
     def base_character(self, preset: str):
         """The preset at its default shape (cached)."""

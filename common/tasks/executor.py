@@ -36,9 +36,11 @@ import mujoco
 import numpy as np
 
 from common.characters import load_character
+from common.characters.mass import scale_body_mass
 from common.characters.morph import lift_out_of_floor
 from common.motion.library import MotionLibrary
 from common.motion.manifest import Manifest, load_manifest, unicon_split
+from common.motion.mirror import mirrored_id, source_id
 from common.motion.reference import CharacterMotion
 from common.params import ParamSpace
 from common.tasks import executor_rewards as rw
@@ -74,14 +76,15 @@ def _manifest() -> Manifest:
     return load_manifest()
 
 
-def humanoid_clips() -> list[tuple[str, str]]:
-    """(clip_id, label) of every manifest clip that plays on the humanoid as it is."""
-    from common.motion import library
+def humanoid_clips(mirror: bool = False) -> list[tuple[str, str]]:
+    """(clip_id, label) of every manifest clip that plays on the humanoid as it is; with `mirror`,
+    each followed by its left-right mirror image (`<id>~mirror`, the same label; mirror.py)."""
+    from common.motion.library import clips_for
 
-    if hasattr(library, "clips_for"):
-        return list(library.clips_for(CHARACTER))
-    lib = MotionLibrary()
-    return [(e.id, e.label) for e in _manifest().entries if lib.clip(e.id).character == CHARACTER]
+    pairs = list(clips_for(CHARACTER))
+    if not mirror:
+        return pairs
+    return [p for c, label in pairs for p in ((c, label), (mirrored_id(c), label))]
 
 
 def executor_clips(cfg: TaskConfig) -> list[tuple[str, str]]:
@@ -94,22 +97,27 @@ def executor_clips(cfg: TaskConfig) -> list[tuple[str, str]]:
 
 
 def labelled_clips(cfg: TaskConfig) -> list[tuple[str, str]]:
-    """(clip_id, manifest label) the task tracks (see `executor_clips`)."""
+    """(clip_id, manifest label) the task tracks (see `executor_clips`). The split is drawn over
+    the manifest's clips; with `mirror` each clip's mirror image joins it on its side, so a
+    held-out motion is never learnt through its mirror. Named clips may be mirrored ids."""
     ex = cfg.executor
-    every = humanoid_clips()
-    labels = dict(every)
+    labels = dict(humanoid_clips(mirror=True))
     if ex.clips:
         unknown = [c for c in ex.clips if c not in labels]
         if unknown:
             raise ValueError(f"clips {unknown} do not play on the humanoid; choose from: {', '.join(labels)}")
-        return [(c, labels[c]) for c in ex.clips]
+        named = list(ex.clips)
+        if ex.mirror:
+            named += [mirrored_id(c) for c in ex.clips if mirrored_id(c) not in named]
+        return [(c, labels[c]) for c in named]
+    every = humanoid_clips(mirror=ex.mirror)
     if ex.split == "all":
         return every
     manifest = _manifest()
-    sub = Manifest(tuple(manifest.by_id(c) for c, _ in every))
+    sub = Manifest(tuple(manifest.by_id(c) for c, _ in humanoid_clips()))
     split = unicon_split(sub, seed=ex.split_seed)
     keep = set(split.train if ex.split == "train" else split.test)
-    return [(c, lab) for c, lab in every if c in keep]
+    return [(c, lab) for c, lab in every if source_id(c) in keep]
 
 
 def torque_actuation(model: mujoco.MjModel, efforts: np.ndarray) -> None:
@@ -370,12 +378,12 @@ class ExecutorEnv:
     # ---- perturbations for the zero-shot robustness tests ----
 
     def scale_mass(self, factor: float) -> None:
-        """Make every body of the character `factor` times heavier (masses and inertias)."""
+        """Make every body of the character `factor` times heavier (masses and inertias, and what
+        MuJoCo derives from them: `common.characters.mass`)."""
         if not 0.05 <= factor <= 20.0:
             raise ValueError(f"mass factor {factor} must be in [0.05, 20]")
         n = self.ref_model.nbody
-        self.model.body_mass[:n] = self.base_mass[:n] * factor
-        self.model.body_inertia[:n] = self.base_inertia[:n] * factor
+        scale_body_mass(self.model, self.base_mass[:n], self.base_inertia[:n], factor, slice(0, n))
 
     def _ball_slots(self, ball: int) -> tuple[int, int, int]:
         """(qpos address, dof address, geom id) of a projectile body."""

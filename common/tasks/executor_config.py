@@ -21,6 +21,10 @@ class ExecutorConfig:
     the task trains on when `clips` is empty."""
     split_seed: int = 0
     """Seed of the split (`common.motion.manifest.unicon_split`)."""
+    mirror: bool = False
+    """Also track every clip's left-right mirror image (`<id>~mirror`: the other hand and foot,
+    turning the other way; `common.motion.mirror`), with its source's label and on its source's
+    side of the split: twice the motions to learn from, none of them held out."""
     clip_draws: Literal["balancer", "uniform"] = "balancer"
     """balancer: clips are drawn by walking the class tree (UniCon 5.1, eq. 8); uniform: every
     clip equally likely (the ablation: the task relabels its clips so the balancer is flat)."""

@@ -76,8 +76,9 @@ def _dataset(env: Any, frames: dict, *, clips: tuple[str, ...] = (), **options: 
 
 
 def _known_clips(env: Any) -> list[str]:
-    """Every clip id `env` can play: the humanoid's library clips and those registered on it."""
+    """Every clip id `env` can play: the humanoid's library clips, their mirror images and the
+    clips registered on it."""
     from common.tasks.executor import humanoid_clips
 
-    known = [c for c, _ in humanoid_clips()]
+    known = [c for c, _ in humanoid_clips(mirror=True)]
     return known + [c for c in env._motions if c not in set(known)]

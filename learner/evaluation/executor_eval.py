@@ -44,6 +44,7 @@ from typing import Any, Callable, Iterable
 import numpy as np
 import torch
 
+from common.motion.mirror import MIRROR_SUFFIX
 from common.tasks.base import TaskConfig
 from learner.evaluation import eval_core
 
@@ -115,21 +116,23 @@ def _with_executor(cfg: TaskConfig, **changes) -> TaskConfig:
 
 
 def split_tags(cfg: TaskConfig) -> dict[str, str]:
-    """{clip_id: "train" | "test" | "unused"} for every humanoid clip (see `SPLITS`), from the
-    checkpoint's task config: its clip list or split (and split seed)."""
+    """{clip_id: "train" | "test" | "unused"} for every humanoid clip and its mirror image (see
+    `SPLITS`), from the checkpoint's task config: its clip list or split (and split seed), and
+    whether it trained on mirror images (without, a train clip's mirror is "unused")."""
     from common.tasks.executor import humanoid_clips, labelled_clips
 
     trained = {c for c, _ in labelled_clips(cfg)}
     held_out = {c for c, _ in labelled_clips(_with_executor(cfg, clips=(), split="test"))}
-    return {c: "train" if c in trained else "test" if c in held_out else "unused" for c, _ in humanoid_clips()}
+    return {c: "train" if c in trained else "test" if c in held_out else "unused" for c, _ in humanoid_clips(mirror=True)}
 
 
 def default_clips(cfg: TaskConfig, splits: Iterable[str] = ("train", "test", "unused")) -> list[EvalClip]:
-    """Every humanoid clip whose split tag is in `splits`, in manifest order."""
+    """Every humanoid clip whose split tag is in `splits`, in manifest order; mirror images only
+    when the checkpoint trained on them (`ExecutorConfig.mirror`; name them in --clips otherwise)."""
     from common.tasks.executor import humanoid_clips
 
     tags, keep = split_tags(cfg), set(splits)
-    return [EvalClip(c, label, tags[c]) for c, label in humanoid_clips() if tags[c] in keep]
+    return [EvalClip(c, label, tags[c]) for c, label in humanoid_clips(mirror=cfg.executor.mirror) if tags[c] in keep]
 
 
 def classify_clip_value(text: str) -> tuple[str, str]:
@@ -137,7 +140,7 @@ def classify_clip_value(text: str) -> tuple[str, str]:
     an unknown id, a missing file, a folder holding no `.npz` clips."""
     from common.tasks.executor import humanoid_clips
 
-    ids = [c for c, _ in humanoid_clips()]
+    ids = [c for c, _ in humanoid_clips(mirror=True)]
     if text in ids:
         return "id", text
     path = Path(text)
@@ -153,7 +156,8 @@ def classify_clip_value(text: str) -> tuple[str, str]:
     if path.suffix.lower() in CLIP_SUFFIXES:
         raise ClipSelectionError(f"file {text!r} does not exist")
     raise ClipSelectionError(f"{text!r} is no humanoid clip id, clip file or folder of .npz clips; "
-                             f"ids: {', '.join(ids)}")
+                             f"ids: {', '.join(c for c, _ in humanoid_clips())} (each also as <id>{MIRROR_SUFFIX}, "
+                             "its mirror image)")
 
 
 def import_clip_file(path: Path):
@@ -176,7 +180,7 @@ def resolve_clips(values: Iterable[str], cfg: TaskConfig) -> list[EvalClip]:
     `imported/<file stem>`. Raises ClipSelectionError (naming the value) or ClipError."""
     from common.tasks.executor import humanoid_clips
 
-    tags, labels = split_tags(cfg), dict(humanoid_clips())
+    tags, labels = split_tags(cfg), dict(humanoid_clips(mirror=True))
     out: list[EvalClip] = []
     seen: set[str] = set()
     for value in values:
@@ -204,11 +208,11 @@ def resolve_clips(values: Iterable[str], cfg: TaskConfig) -> list[EvalClip]:
 
 
 def eval_task(cfg: TaskConfig, perturbation: Perturbation = Perturbation()) -> TaskConfig:
-    """The checkpoint's task as evaluated (module docstring): every humanoid clip trackable, a
-    stopping scheduler, no reactive initialization, termination off (read off the trajectory
-    instead), a time limit no clip reaches; the row's playback speed and projectile body."""
-    ex = dataclasses.replace(cfg.executor, clips=(), split="all", at_clip_end="stop", reactive_init=False, catch_up_steps=0,
-                             termination="none", speed=perturbation.speed,
+    """The checkpoint's task as evaluated (module docstring): every humanoid clip and its mirror
+    image trackable, a stopping scheduler, no reactive initialization, termination off (read off
+    the trajectory instead), a time limit no clip reaches; the row's playback speed and projectile body."""
+    ex = dataclasses.replace(cfg.executor, clips=(), split="all", mirror=True, at_clip_end="stop", reactive_init=False,
+                             catch_up_steps=0, termination="none", speed=perturbation.speed,
                              projectile=perturbation.projectile_every > 0)
     return dataclasses.replace(cfg, episode_s=EVAL_EPISODE_S, executor=ex)
 

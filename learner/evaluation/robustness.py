@@ -55,6 +55,7 @@ from typing import Any
 import numpy as np
 
 from learner.evaluation import cli_args, eval_core, executor_eval as xe
+from common.characters.mass import scale_body_mass, set_body_mass
 from common.tasks.executor import PROJECTILES
 
 SPEEDS = (0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.1, 1.2, 1.3, 1.4, 1.5, 1.6)
@@ -182,7 +183,8 @@ class _MassScaled:
     """An `ImitateEnv` whose every character body is `factor` times heavier (masses and
     inertias). Applied after each reset, since a reset may switch to another cached shape's
     model; the previous episode's model gets its own masses back first, so a model the shape
-    cache hands out again is never scaled twice."""
+    cache hands out again is never scaled twice. Masses change through `common.characters.mass`,
+    which also recomputes what MuJoCo derives from them (the subtree masses the COM divides by)."""
 
     def __init__(self, env, factor: float):
         self._env, self._factor = env, factor
@@ -194,12 +196,11 @@ class _MassScaled:
     def reset(self, seed, params, *a, **k):
         if self._scaled is not None:
             m, mass, inertia = self._scaled
-            m.body_mass[:], m.body_inertia[:] = mass, inertia
+            set_body_mass(m, mass, inertia)
         out = self._env.reset(seed, params, *a, **k)
         m = self._env.model
         self._scaled = (m, m.body_mass.copy(), m.body_inertia.copy())
-        m.body_mass[:] *= self._factor
-        m.body_inertia[:] *= self._factor
+        scale_body_mass(m, self._scaled[1], self._scaled[2], self._factor)
         return out
 
     def step(self, action):

@@ -13,13 +13,13 @@ from learner.evaluation import eval_core, eval_plots
 
 def projectile_spec() -> dict[str, Any]:
     """The projectile as `common.tasks.executor` builds it and `throw_projectile` aims it."""
-    from common.tasks.executor import PROJECTILE
+    from common.tasks.executor import PROJECTILE, PROJECTILES
 
     return {"mass_kg": PROJECTILE["mass_kg"], "radius_m": PROJECTILE["radius_m"],
-            "aim": "straight at the character's root from a random horizontal direction, launched at the root's "
-                   "height +-0.3 m (gravity bends the path a little)",
-            "schedule": "thrown at control steps 0, N, 2N, ... of each episode (N: the row's interval); one ball, "
-                        "so a throw re-launches it"}
+            "aim": "from a random horizontal direction, launched at the root's height +-0.3 m, at where the centre "
+                   "of mass will be when it arrives (the root's velocity held; gravity bends the path a little)",
+            "schedule": f"thrown at control steps 0, N, 2N, ... of each episode (N: the row's interval); {PROJECTILES} "
+                        "balls thrown in turn, each parked again 1 s after its throw"}
 
 
 def _pct(x: float | None) -> str:
@@ -73,10 +73,11 @@ def markdown(loaded: eval_core.Loaded, base: dict, results: list[dict], protocol
                   "{}; {}. UniCon gives no size, mass or speed.".format(
                       pj["mass_kg"], 100 * pj["radius_m"], pj["speed_mps"], pj["distance_m"], pj["aim"], pj["schedule"]), ""]
     if loaded.cfg.task.name == "executor":
-        lines += ["Mass rows scale every body's mass and inertia (`ExecutorEnv.scale_mass`); the effort factors stay "
-                  "those of the trained body. Speed rows play the targets at that speed (`ExecutorConfig.speed`).", ""]
+        lines += ["Mass rows scale every body's mass and inertia, and what MuJoCo derives from them "
+                  "(`ExecutorEnv.scale_mass`); the effort factors and PD gains stay those of the trained body. Speed rows play the targets at that speed (`ExecutorConfig.speed`).", ""]
     else:
-        lines += ["Mass rows scale every body's mass and inertia of each shape after its reset; torque limits and "
+        lines += ["Mass rows scale every body's mass and inertia of each shape after its reset (and what MuJoCo "
+                  "derives from them); torque limits and "
                   "PD gains stay those of the shape.", ""]
     if skipped:
         lines += ["Skipped rows:", "", *(f"- {', '.join(names)}: {why}" for why, names in skipped.items()), ""]

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from common.characters.mass import scale_body_mass
 from learner.evaluation import eval_core
 
 AGENTS = ("policy", "zero", "random")
@@ -274,8 +275,7 @@ class LiveSession:
             return
         m = self.env.model  # NOTE: a morph or a reset may hand out another model: keep each one's own masses
         base = self._base_masses.setdefault(id(m), (m.body_mass.copy(), m.body_inertia.copy()))
-        m.body_mass[:] = base[0] * self.mass_factor
-        m.body_inertia[:] = base[1] * self.mass_factor
+        scale_body_mass(m, base[0], base[1], self.mass_factor)
 
     def status(self) -> dict[str, Any]:
         """What the studio shows beside the character."""

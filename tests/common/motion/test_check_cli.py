@@ -69,3 +69,13 @@ def test_check_reports_the_root_bob_and_each_root_height_rule(capsys):
     with pytest.raises(SystemExit):
         cli.main(["check", "procedural/quadruped", "--root-height", "lowest"])
     assert "lowest" in capsys.readouterr().err
+
+
+def test_cli_checks_a_mirror_image_by_id(capsys):
+    assert cli.main(["check", "humanoid3d_kick", "humanoid3d_kick~mirror"]) == 0
+    plain, mirrored = capsys.readouterr().out.splitlines()[1:]
+    # the kick's one hip over its joint range moves to the other side; the foot figures stay
+    assert "right_hip.z" in plain and "left_hip.z" in mirrored
+    assert plain.split("raw")[1].split("limits")[0] == mirrored.split("raw")[1].split("limits")[0]
+    assert cli.main(["check", "humanoid3d_nope~mirror"]) == 1
+    assert "each also as <id>~mirror" in capsys.readouterr().out

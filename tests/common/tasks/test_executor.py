@@ -357,3 +357,38 @@ def test_the_watched_terms_decide_what_ends_an_episode():
         assert min(info["terms"][t] for t in watch) < 0.1
     assert ends[rw.POSE_TERMS][1] != "joint_velocity"
     assert ends[rw.POSE_TERMS][0] >= ends[rw.TERMS][0]
+
+
+@pytest.mark.parametrize("factor", [0.75, 1.25])
+def test_a_lighter_or_heavier_body_scores_the_same_pose_the_same(factor: float):
+    """scale_mass (the robustness table's mass rows) changes the body, not the reward: on the
+    first step from the tracked frame, with the projectile bodies in the scene, every term is
+    as without it to within what the lighter body's first step moves."""
+    cfg = cfg_with(projectile=True, reactive_init=False, termination="none", actuation="pd")
+    terms = []
+    for f in (1.0, factor):
+        env = make_env(cfg, seed=0)
+        env.scale_mass(f)
+        env.reset(0, env.space.default_array, "humanoid3d_walk", 0.3)
+        _, _, _, _, info = env.step(np.zeros(env.act_dim))
+        terms.append(info["terms"])
+    # NOTE: before the masses' derived fields were recomputed, root_position read 0.03-0.3 here
+    for name, value in terms[0].items():
+        assert terms[1][name] == pytest.approx(value, abs=0.03), name
+
+
+def test_mirror_images_join_their_sources_side_of_the_split():
+    from common.tasks.executor import labelled_clips
+
+    plain, mirrored = labelled_clips(CFG), labelled_clips(cfg_with(mirror=True))
+    assert mirrored == [p for c, label in plain for p in ((c, label), (c + "~mirror", label))]
+    held_out = labelled_clips(cfg_with(mirror=True, split="test"))
+    assert {c.removesuffix("~mirror") for c, _ in held_out}.isdisjoint({c for c, _ in plain})
+    assert len(held_out) == 2 * len(labelled_clips(cfg_with(split="test")))
+    assert [c for c, _ in labelled_clips(cfg_with(clips=("humanoid3d_walk~mirror",)))] == ["humanoid3d_walk~mirror"]
+    env = make_env(cfg_with(mirror=True, clips=("humanoid3d_kick",), reactive_init=False), seed=0)
+    assert list(env.scheduler.clip_ids) == ["humanoid3d_kick", "humanoid3d_kick~mirror"]
+    env.reset(0, env.space.default_array, "humanoid3d_kick~mirror", 0.5)
+    assert env.scheduler.status()["clip_id"] == "humanoid3d_kick~mirror"
+    with pytest.raises(ValueError, match="do not play on the humanoid"):
+        labelled_clips(cfg_with(clips=("humanoid3d_walk~flipped",)))

@@ -32,10 +32,19 @@ def test_split_tags_follow_the_checkpoints_config(loaded) -> None:
     from common.tasks.executor import humanoid_clips, labelled_clips
 
     tags = xe.split_tags(loaded.cfg.task)
-    assert set(tags) == {c for c, _ in humanoid_clips()}
+    assert set(tags) == {c for c, _ in humanoid_clips(mirror=True)}
     trained = {c for c, _ in labelled_clips(loaded.cfg.task)}
     assert {c for c, t in tags.items() if t == "train"} == trained
-    assert "test" in tags.values() and "unused" not in tags.values()
+    plain = {c: t for c, t in tags.items() if not c.endswith("~mirror")}
+    assert "test" in plain.values() and "unused" not in plain.values()
+    # Trained without mirror images: every mirror image is unused, and default_clips leaves them out.
+    assert {t for c, t in tags.items() if c.endswith("~mirror")} == {"unused"}
+    assert not any(c.clip_id.endswith("~mirror") for c in xe.default_clips(loaded.cfg.task))
+    # Trained with them: each mirror image is on its source's side of the split.
+    mirrored = dataclasses.replace(loaded.cfg.task, executor=dataclasses.replace(loaded.cfg.task.executor, mirror=True))
+    tags = xe.split_tags(mirrored)
+    assert all(tags[c + "~mirror"] == t for c, t in plain.items())
+    assert len(xe.default_clips(mirrored)) == 2 * len(plain)
     # A checkpoint trained on a clip list: those are "train"; other train-split clips are "unused".
     listed = dataclasses.replace(loaded.cfg.task, executor=dataclasses.replace(loaded.cfg.task.executor,
                                                                                clips=("humanoid3d_walk",)))
