@@ -31,15 +31,15 @@ from common.motion.errors import ClipError
 
 MIRROR_SUFFIX = "~mirror"
 """Appended to a clip id (or name) to name its mirror image."""
-LATERAL_AXES = {"x": 0, "y": 1}
-_SIDES = (  # (pattern, the side's text -> its partner's): left_hip, LeftUpLeg, FemurL, hip_l
-    (re.compile(r"^(left|right)(?=[_A-Z]|$)", re.I), lambda side: _swap_word(side)),
-    (re.compile(r"(?<=_)(left|right|l|r)$", re.I), lambda side: _swap_word(side)),
-    (re.compile(r"(?<=[a-z])(L|R)$"), lambda side: "R" if side == "L" else "L"),
+_SIDES = (  # where a name says its side: left_hip, LeftUpLeg, FemurL, hip_l
+    re.compile(r"^(left|right)(?=[_A-Z]|$)", re.I),
+    re.compile(r"(?<=_)(left|right|l|r)$", re.I),
+    re.compile(r"(?<=[a-z])(L|R)$"),
 )
 
 
-def _swap_word(side: str) -> str:
+def _other_side(side: str) -> str:
+    """right for left, R for L, Left for Right ...: the word for the other side, in the same case."""
     other = {"left": "right", "right": "left", "l": "r", "r": "l"}[side.lower()]
     if side.isupper():
         return other.upper()
@@ -63,10 +63,10 @@ def source_id(clip_id: str) -> str:
 def partner_name(name: str) -> str:
     """The mirror partner of a joint or body name: its left/right counterpart, or the name itself
     for a joint on the midline (chest, Spine)."""
-    for pattern, swap in _SIDES:
+    for pattern in _SIDES:
         m = pattern.search(name)
         if m:
-            return name[: m.start(1)] + swap(m.group(1)) + name[m.end(1):]
+            return name[: m.start(1)] + _other_side(m.group(1)) + name[m.end(1):]
     return name
 
 
