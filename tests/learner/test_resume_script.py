@@ -55,3 +55,15 @@ def test_an_unknown_run_stops_the_script_before_anything_starts() -> None:
     assert done.returncode == 2
     assert "unknown run 'no-such-run'" in done.stderr and first in done.stderr
     assert done.stdout == ""
+
+
+def test_one_run_takes_the_machine_and_several_share_it() -> None:
+    order = SCRIPT.read_text().split("ORDER=(", 1)[1].split(")", 1)[0].split()
+    assert order and set(order) <= set(_names()), order
+    runnable = [n for n in _names() if _dry_run(n).returncode == 0]
+    if len(runnable) < 2:
+        pytest.skip("fewer than two runs with a checkpoint here")
+    alone = _dry_run(runnable[0]).stdout.split()
+    assert alone[alone.index("--mode") + 1] == "local"
+    both = [line.split() for line in _dry_run(*runnable[:2]).stdout.splitlines()]
+    assert [argv[argv.index("--mode") + 1] for argv in both] == ["serial", "serial"]

@@ -5,8 +5,11 @@
 # with an error rather than silently start over).
 # A run is either `learner.main ...` or `learner.curriculum --stages ... -- ...` (the curriculum
 # skips the stages its checkpoint has passed; a checkpoint kept here is a fork it counts from).
-# Usage: bash learner/pretrained/in-progress/resume.sh [--dry-run] [name ...]   (default: every run listed below)
+# Usage: bash learner/pretrained/in-progress/resume.sh [--dry-run] [name ...]   (default: the first run of ORDER)
 #   --dry-run: print each run's command (one line each) instead of starting it
+# One run takes the whole machine in local mode (two rollout actors and the learner on their own
+# cores: lb5-mb128 made 2,350 steps/s so, against 800 in serial mode beside another serial run);
+# several runs named at once each run in serial mode (one process, no Ray) and share the cores.
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
 HERE=learner/pretrained/in-progress
@@ -18,18 +21,21 @@ LB5="--preset lower_biped --ppo.gamma 0.99 --task.imitate.retarget-root-height c
 BIPED_STAGES="0.25:2M 0.5:6M 0.75:12M 1:30M"
 BIPED="--preset biped --ppo.gamma 0.99 --task.imitate.retarget-root-height contact_smooth --task.imitate.retarget-body-clearance-m 0.01"
 declare -A ARGS=(
-  [manta-course]="learner.main --preset manta --mode serial"
-  [manta-nocourse]="learner.main --preset manta --task.imitate.no-observe-course --mode serial"
-  [executor-torque]="learner.main --preset executor --mode serial"
-  [executor-pd-g99]="learner.main --preset executor-pd --ppo.gamma 0.99 --mode serial"
-  [lb5-mb128]="learner.curriculum --stages $LB5_STAGES -- $LB5 --mode serial"
-  [biped-curr]="learner.curriculum --stages $BIPED_STAGES -- $BIPED --mode serial"
+  [manta-course]="learner.main --preset manta"
+  [manta-nocourse]="learner.main --preset manta --task.imitate.no-observe-course"
+  [executor-torque]="learner.main --preset executor"
+  [executor-pd-g99]="learner.main --preset executor-pd --ppo.gamma 0.99"
+  [lb5-mb128]="learner.curriculum --stages $LB5_STAGES -- $LB5"
+  [biped-curr]="learner.curriculum --stages $BIPED_STAGES -- $BIPED"
 )
+ORDER=(lb5-mb128 biped-curr manta-course executor-pd-g99 executor-torque)  # what to resume first
 FRESH=(manta-course lb5-mb128 biped-curr)
 DRY=0
 if [ "${1:-}" = "--dry-run" ]; then DRY=1; shift; fi
 names=("$@")
-[ ${#names[@]} -eq 0 ] && names=(lb5-mb128 biped-curr manta-course executor-torque executor-pd-g99)
+[ ${#names[@]} -eq 0 ] && names=("${ORDER[0]}")
+MODE=local
+[ ${#names[@]} -gt 1 ] && MODE=serial
 declare -A FROM=()
 for name in "${names[@]}"; do  # every name checked before anything starts
   [ -n "${ARGS[$name]+x}" ] || { echo "resume.sh: unknown run '$name'; choose one of ${!ARGS[*]}" >&2; exit 2; }
@@ -40,12 +46,12 @@ for name in "${names[@]}"; do  # every name checked before anything starts
   fi
 done
 if [ $DRY = 1 ]; then
-  for name in "${names[@]}"; do echo "python -m ${ARGS[$name]} --name $name --resume ${FROM[$name]} --quiet"; done
+  for name in "${names[@]}"; do echo "python -m ${ARGS[$name]} --mode $MODE --name $name --resume ${FROM[$name]} --quiet"; done
   exit 0
 fi
 mkdir -p runs
 for name in "${names[@]}"; do
   # shellcheck disable=SC2086
-  nohup nice -n 5 python -m ${ARGS[$name]} --name "$name" --resume "${FROM[$name]}" --quiet >> "runs/$name.out" 2>&1 &
-  echo "resumed $name from ${FROM[$name]} (pid $!)"
+  nohup nice -n 5 python -m ${ARGS[$name]} --mode "$MODE" --name "$name" --resume "${FROM[$name]}" --quiet >> "runs/$name.out" 2>&1 &
+  echo "resumed $name from ${FROM[$name]} in $MODE mode (pid $!)"
 done
