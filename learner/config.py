@@ -205,8 +205,10 @@ def _from_dict(cls: type, raw: dict):
         kwargs[k] = v
     cfg = cls(**kwargs)  # the class's own checks first (their messages are more specific)
     prefix = getattr(cls, "FLAG_PREFIX", "")
-    for name, hint in get_type_hints(cls).items():  # then every Literal field: one of its choices (tyro checks flags)
+    for name, hint in get_type_hints(cls).items():  # then every Literal and bool field (tyro checks flags)
+        flag = f"--{prefix + '.' if prefix else ''}{name.replace('_', '-')}"
         if get_origin(hint) is Literal and getattr(cfg, name) not in get_args(hint):
-            raise ValueError(f"--{prefix + '.' if prefix else ''}{name.replace('_', '-')} = {getattr(cfg, name)!r} "
-                             f"is not one of {', '.join(map(str, get_args(hint)))}")
+            raise ValueError(f"{flag} = {getattr(cfg, name)!r} is not one of {', '.join(map(str, get_args(hint)))}")
+        if hint is bool and not isinstance(getattr(cfg, name), bool):
+            raise ValueError(f"{flag} = {getattr(cfg, name)!r} is not one of true, false")
     return cfg

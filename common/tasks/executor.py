@@ -40,7 +40,7 @@ from common.characters.mass import scale_body_mass
 from common.characters.morph import lift_out_of_floor
 from common.motion.library import MotionLibrary
 from common.motion.manifest import Manifest, load_manifest, unicon_split
-from common.motion.mirror import mirrored_id, source_id
+from common.motion.mirror import MIRROR_SUFFIX, mirrored_id, source_id
 from common.motion.reference import CharacterMotion
 from common.params import ParamSpace
 from common.tasks import executor_rewards as rw
@@ -81,9 +81,11 @@ def humanoid_clips(mirror: bool = False) -> list[tuple[str, str]]:
     each followed by its left-right mirror image (`<id>~mirror`, the same label; mirror.py)."""
     from common.motion.library import clips_for
 
-    pairs = list(clips_for(CHARACTER))
-    if not mirror:
-        return pairs
+    pairs = list(clips_for(CHARACTER, _manifest()))
+    return _with_mirrors(pairs) if mirror else pairs
+
+
+def _with_mirrors(pairs: list[tuple[str, str]]) -> list[tuple[str, str]]:
     return [p for c, label in pairs for p in ((c, label), (mirrored_id(c), label))]
 
 
@@ -101,20 +103,22 @@ def labelled_clips(cfg: TaskConfig) -> list[tuple[str, str]]:
     the manifest's clips; with `mirror` each clip's mirror image joins it on its side, so a
     held-out motion is never learnt through its mirror. Named clips may be mirrored ids."""
     ex = cfg.executor
-    labels = dict(humanoid_clips(mirror=True))
+    plain = humanoid_clips()
     if ex.clips:
+        labels = dict(_with_mirrors(plain))
         unknown = [c for c in ex.clips if c not in labels]
         if unknown:
-            raise ValueError(f"clips {unknown} do not play on the humanoid; choose from: {', '.join(labels)}")
+            raise ValueError(f"clips {unknown} do not play on the humanoid; choose from: {', '.join(c for c, _ in plain)} "
+                             f"(each also as <id>{MIRROR_SUFFIX}, its mirror image)")
         named = list(ex.clips)
         if ex.mirror:
             named += [mirrored_id(c) for c in ex.clips if mirrored_id(c) not in named]
         return [(c, labels[c]) for c in named]
-    every = humanoid_clips(mirror=ex.mirror)
+    every = _with_mirrors(plain) if ex.mirror else plain
     if ex.split == "all":
         return every
     manifest = _manifest()
-    sub = Manifest(tuple(manifest.by_id(c) for c, _ in humanoid_clips()))
+    sub = Manifest(tuple(manifest.by_id(c) for c, _ in plain))
     split = unicon_split(sub, seed=ex.split_seed)
     keep = set(split.train if ex.split == "train" else split.test)
     return [(c, lab) for c, lab in every if source_id(c) in keep]

@@ -109,6 +109,7 @@ def test_a_saved_config_of_the_wrong_type_is_a_value_error_naming_it(edit) -> No
 
 @pytest.mark.parametrize("section, field, bad", [
     ("executor", "catch_up_ends", "soon"), ("executor", "actuation", 3), (None, "mode", ["serial"]),
+    ("executor", "mirror", "yes"), ("executor", "reactive_init", 1),
 ])
 def test_a_saved_config_with_a_choice_it_does_not_offer_is_refused_by_name(section, field, bad) -> None:
     import json
