@@ -17,19 +17,15 @@ HERE=learner/pretrained/in-progress
 # 10 x 512 minibatches was stopped at 2 M: docs/benchmarks.md)
 LB5_STAGES="0.25:2M 0.5:5M 0.75:10M 1:30M"  # 20 M (the issue) reached: 26.3%; on to find where it crosses 20.7%
 LB5="--preset lower_biped --ppo.gamma 0.99 --task.imitate.retarget-root-height contact_smooth --task.imitate.retarget-body-clearance-m 0.01"
-# issue 23 item 4: the full 19-segment biped, the same reference rule, a longer curriculum (legs x0.5-2.0)
-BIPED_STAGES="0.25:2M 0.5:6M 0.75:12M 1:30M"
-BIPED="--preset biped --ppo.gamma 0.99 --task.imitate.retarget-root-height contact_smooth --task.imitate.retarget-body-clearance-m 0.01"
 declare -A ARGS=(
   [manta-course]="learner.main --preset manta"
   [manta-nocourse]="learner.main --preset manta --task.imitate.no-observe-course"
   [executor-torque]="learner.main --preset executor"
   [executor-pd-g99]="learner.main --preset executor-pd --ppo.gamma 0.99"
   [lb5-mb128]="learner.curriculum --stages $LB5_STAGES -- $LB5"
-  [biped-curr]="learner.curriculum --stages $BIPED_STAGES -- $BIPED"
 )
-ORDER=(lb5-mb128 biped-curr manta-course executor-pd-g99 executor-torque)  # what to resume first
-FRESH=(manta-course lb5-mb128 biped-curr)
+ORDER=(lb5-mb128 manta-course executor-pd-g99 executor-torque)  # what to resume first
+FRESH=(manta-course lb5-mb128)
 DRY=0
 if [ "${1:-}" = "--dry-run" ]; then DRY=1; shift; fi
 names=("$@")
