@@ -43,6 +43,7 @@ import mujoco
 import numpy as np
 import torch
 
+from common.tasks.executor import pd_lead_s, pd_target
 from learner import checkpoint
 from learner.evaluation import cli_args
 
@@ -55,6 +56,7 @@ class TorqueLabeler:
         self.pd_model = pd_model
         self.pd_data = mujoco.MjData(pd_model)
         self.scale = pd_action_scale
+        self.lead_s = pd_lead_s(pd_model) if env.ex.pd_velocity_target else None
         act_dofs = [int(pd_model.jnt_dofadr[pd_model.actuator_trnid[a, 0]]) for a in range(pd_model.nu)]
         # one actuator per DOF in joint order: a ball joint's three actuators drive its three DOFs
         self.dofs = np.array([d + (act_dofs[:a].count(d)) for a, d in enumerate(act_dofs)])
@@ -71,7 +73,7 @@ class TorqueLabeler:
         d.qpos[:] = env.data.qpos[: self.pd_model.nq]
         d.qvel[:] = env.data.qvel[: self.pd_model.nv]
         d.time = env.data.time
-        target = env.layout.to_vector(env.scheduler.frame(1).qpos)
+        target = pd_target(env.layout, env.scheduler.frame(1), self.lead_s)
         d.ctrl[:] = target + self.scale * np.clip(teacher_action, -3.0, 3.0)
         total = np.zeros(self.pd_model.nu)
         for _ in range(self.substeps):

@@ -151,6 +151,22 @@ def passive_damping(model: mujoco.MjModel, fraction: float) -> None:
         model.dof_damping[dof : dof + width] = fraction * GAINS[model.joint(j).name.split("_")[-1]][1]
 
 
+def pd_lead_s(model: mujoco.MjModel) -> np.ndarray:
+    """kd / kp `[nu]` (s) of the PD's position actuators (gain kp, bias -kp q - kd qdot)."""
+    return -model.actuator_biasprm[:, 2] / model.actuator_gainprm[:, 0]
+
+
+def pd_target(layout: JointLayout, frame: TargetFrame, lead_s: np.ndarray | None = None) -> np.ndarray:
+    """The PD targets `[nu]` of a zero action: the frame's joint angles (ball joints as rotation
+    vectors); with `lead_s` (`pd_lead_s`, the `pd_velocity_target` switch) plus the frame's joint
+    velocities times kd / kp, which turns the actuators' damping kd (0 - qdot) into
+    kd (qdot~ - qdot): the PD with a target velocity (Tan et al. 2011); DeepMimic's has none."""
+    target = layout.to_vector(frame.qpos)
+    if lead_s is not None:
+        target = target + lead_s * frame.qvel[6 : 6 + len(lead_s)]
+    return target
+
+
 def effort_factors(model: mujoco.MjModel, mass_kg: float, scale: float = 1.0) -> np.ndarray:
     """`[nu]` effort factors: EFFORT_70KG_NM by joint (actuator names `<joint>` or
     `<joint>_x|y|z`, the joint's last word picks the row) times mass / 70 kg times `scale`."""
@@ -214,6 +230,7 @@ class ExecutorEnv:
             passive_damping(self.model, self.ex.passive_damping)
         elif self.ex.actuation != "pd":
             raise ValueError(f"actuation {self.ex.actuation!r} is not one of torque, pd")
+        self.pd_lead_s = pd_lead_s(self.model) if self.ex.actuation == "pd" and self.ex.pd_velocity_target else None
         self.layout = JointLayout(self.ref_model)
         self.bodies = np.arange(1, self.ref_model.nbody)
         self.clip_list = executor_clips(cfg)
@@ -335,8 +352,7 @@ class ExecutorEnv:
         if self.ex.actuation == "torque":
             self.data.ctrl[:] = np.clip(a, -1.0, 1.0)
         else:
-            target = self.layout.to_vector(self.scheduler.frame(1).qpos)
-            self.data.ctrl[:] = target + self.ex.pd_action_scale * np.clip(a, -3.0, 3.0)
+            self.data.ctrl[:] = self.pd_target(self.scheduler.frame(1)) + self.ex.pd_action_scale * np.clip(a, -3.0, 3.0)
         diverged = step_physics(self.model, self.data, self.cfg.substeps)
         self.k += 1
         if self.balls:
@@ -361,6 +377,10 @@ class ExecutorEnv:
         info = {"diverged": False, "terms": terms, "ended_by": ended_by if terminated else None,
                 "rescheduled": rescheduled, **pos_err, **self.scheduler.status()}
         return self._observe(actual), reward, terminated, truncated, info
+
+    def pd_target(self, frame: TargetFrame) -> np.ndarray:
+        """The PD targets `[nu]` of a zero action (`pd_target`)."""
+        return pd_target(self.layout, frame, self.pd_lead_s)
 
     def _errors(self, actual: BodyKin, target: BodyKin, frame: TargetFrame) -> tuple[dict[str, float], dict[str, float]]:
         q, qr = self.qpos, frame.qpos

@@ -43,6 +43,14 @@ class ExecutorConfig:
     (ball joints have no limits and nothing takes energy out); 0.05: 4 of 20; 0.1: 0 of 20."""
     pd_action_scale: float = 0.5
     """pd: rad of PD-target deviation per unit action."""
+    pd_velocity_target: bool = False
+    """pd: the PD's damping term tracks the next target frame's joint velocity, tau = kp (q~ - q)
+    + kd (qdot~ - qdot), instead of pulling every joint toward rest, kd (0 - qdot) (DeepMimic's and
+    MuJoCo's position actuator). Done by moving the position target by (kd / kp) qdot~, so the
+    actuators are unchanged. Measured (the humanoid's PD on the reference with no policy, 24
+    clips x 10 starts on the tracked frame): pose success 11.9 -> 18.8% on the train split and
+    8.8 -> 20.0% on the held-out split; the lag it removes broke the fast clips within 5-10
+    control steps (a dance's shoulder 0.6 rad behind after 8 steps, `docs/executor.md`)."""
     termination: Literal["per_term", "sum", "none"] = "per_term"
     """per_term: end the episode as soon as any of the five reward terms falls below `alpha`
     (UniCon's constrained objective, eq. 6); sum: only when the weighted sum falls below `alpha`

@@ -227,6 +227,42 @@ def test_pd_variant_tracks_better_than_a_ragdoll():
     assert lengths["pd"] > lengths["torque"]
 
 
+def test_pd_velocity_target_applies_no_force_on_the_target_state():
+    """Placed exactly on a moving target frame (its joint angles and velocities), the PD with the
+    switch applies no force at all; without it (DeepMimic's PD) it brakes every moving joint by
+    kd qdot~. Checks the lead's DOF order against MuJoCo's own actuator lengths and velocities."""
+    forces = {}
+    for on in (False, True):
+        env = make_env(cfg_with(actuation="pd", pd_velocity_target=on, reactive_init=False, clips=("humanoid3d_dance_a",)), seed=0)
+        env.reset(0, env.space.default_array, start_s=0.3)
+        frame = env.scheduler.frame(1)
+        m, d = env.model, env.data
+        d.qpos[: env.nq], d.qvel[: env.nv] = frame.qpos, frame.qvel
+        d.ctrl[:] = env.pd_target(frame)
+        assert np.all((d.ctrl > m.actuator_ctrlrange[:, 0]) & (d.ctrl < m.actuator_ctrlrange[:, 1]))
+        mujoco.mj_forward(m, d)
+        forces[on] = d.actuator_force.copy()
+        kd = -m.actuator_biasprm[:, 2]
+    np.testing.assert_allclose(forces[True], 0.0, atol=1e-9)
+    np.testing.assert_allclose(forces[False], np.clip(-kd * frame.qvel[6:], -m.actuator_forcerange[:, 1],
+                                                      m.actuator_forcerange[:, 1]), atol=1e-9)
+    assert np.abs(forces[False]).max() > 100.0  # the dance moves: DeepMimic's PD brakes it hard
+
+
+def test_pd_velocity_target_tracks_a_fast_clip_longer():
+    """The humanoid's PD alone on the dance from the tracked frame: with the target velocity its
+    joint-rotation term stays higher after 8 control steps (without it the shoulder lags 0.6 rad)."""
+    term = {}
+    for on in (False, True):
+        env = make_env(cfg_with(actuation="pd", pd_velocity_target=on, reactive_init=False, termination="none",
+                                clips=("humanoid3d_dance_a",)), seed=0)
+        env.reset(0, env.space.default_array, start_s=0.3)
+        for _ in range(8):
+            _, _, _, _, info = env.step(np.zeros(env.act_dim))
+        term[on] = info["terms"]["joint_rotation"]
+    assert term[True] > 2 * term[False]
+
+
 # ---- clips, split, scheduler ----
 
 def test_train_and_test_splits_are_disjoint_and_cover_the_library():
