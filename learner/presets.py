@@ -178,6 +178,12 @@ def _executor_preset(variant: str = "") -> RunConfig:
     (`mj_inverse` on the reference acceleration) ended 28 of 30 there too. With the four pose
     terms watched, the zero PD residual tracks 14.5 steps in the median, 15 with noise std
     0.135, so an episode past the wait has something to learn from.
+    The "pd" variant's PD damps toward the next frame's joint velocity, not toward rest
+    (`pd_velocity_target`; since 2026-12-04): two arms forked from one PD checkpoint at 14.7 M
+    steps and trained side by side to 32.8 M, with the switch and without, tracked 8.8-13.1%
+    against 1.2-2.5% of train starts with all five terms above 0.1 and 17.5-22.5% against
+    6.2-10.0% of held-out starts with the pose terms (five checkpoints each, iterations
+    3700-4000; docs/executor.md). `--task.executor.no-pd-velocity-target` restores the old PD.
     Variants for the ablations: "pd" (PD targets), "noterm" (the sum rule instead of per-term
     termination), "uniform" (uniform clip draws instead of the balancer), "norsis" (start on
     the tracked frame, no noise)."""
@@ -190,6 +196,7 @@ def _executor_preset(variant: str = "") -> RunConfig:
 
     ex = ExecutorConfig(
         actuation="pd" if variant == "pd" else "torque",
+        pd_velocity_target=variant == "pd",
         termination="sum" if variant == "noterm" else "per_term",
         reactive_init=variant != "norsis",
         clip_draws="uniform" if variant == "uniform" else "balancer",

@@ -353,6 +353,7 @@ class ExecutorEnv:
             self.data.ctrl[:] = np.clip(a, -1.0, 1.0)
         else:
             self.data.ctrl[:] = self.pd_target(self.scheduler.frame(1)) + self.ex.pd_action_scale * np.clip(a, -3.0, 3.0)
+        before = self.qpos.copy() if self.ex.joint_velocity == "step_mean" else None
         diverged = step_physics(self.model, self.data, self.cfg.substeps)
         self.k += 1
         if self.balls:
@@ -365,7 +366,7 @@ class ExecutorEnv:
         actual = self._actual_kin()
         target_frame = self.scheduler.frame(0)
         target = self._target_kin(target_frame)
-        errors, pos_err = self._errors(actual, target, target_frame)
+        errors, pos_err = self._errors(actual, target, target_frame, before)
         terms = rw.reward_terms(errors, self.ex.reward_scales)
         self.last_terms = terms
         reward = rw.weighted_sum(terms, self.ex.reward_weights)
@@ -382,8 +383,16 @@ class ExecutorEnv:
         """The PD targets `[nu]` of a zero action (`pd_target`)."""
         return pd_target(self.layout, frame, self.pd_lead_s)
 
-    def _errors(self, actual: BodyKin, target: BodyKin, frame: TargetFrame) -> tuple[dict[str, float], dict[str, float]]:
+    def _errors(self, actual: BodyKin, target: BodyKin, frame: TargetFrame,
+                qpos_before: np.ndarray | None = None) -> tuple[dict[str, float], dict[str, float]]:
+        """Each reward term's error (UniCon eq. 5's kernels' arguments) and the position errors in
+        metres; `qpos_before` (the joint angles a control step ago) makes the joint-velocity term
+        compare the step's mean velocity (`ExecutorConfig.joint_velocity = "step_mean"`)."""
         q, qr = self.qpos, frame.qpos
+        qvel = self.data.qvel[: self.nv]
+        if qpos_before is not None:
+            qvel = np.empty(self.nv)
+            mujoco.mj_differentiatePos(self.ref_model, qvel, self.dt, qpos_before, q)
         lay = self.layout
         rel, rel_ref = actual.relative_positions(), target.relative_positions()
         errors = {
@@ -391,7 +400,7 @@ class ExecutorEnv:
             "root_rotation": rw.root_rotation_error(q[3:7], qr[3:7]),
             "joint_position": rw.joint_position_error(rel, rel_ref),
             "joint_rotation": rw.joint_rotation_error(q[lay.ball_qpos], qr[lay.ball_qpos], q[lay.hinge_qpos], qr[lay.hinge_qpos]),
-            "joint_velocity": rw.joint_velocity_error(self.data.qvel[6 : self.nv], frame.qvel[6:]),
+            "joint_velocity": rw.joint_velocity_error(qvel[6:], frame.qvel[6:]),
         }
         positions = {
             "joint_error_m": float(np.mean(np.linalg.norm(rel - rel_ref, axis=1))),

@@ -51,6 +51,15 @@ class ExecutorConfig:
     clips x 10 starts on the tracked frame): pose success 11.9 -> 18.8% on the train split and
     8.8 -> 20.0% on the held-out split; the lag it removes broke the fast clips within 5-10
     control steps (a dance's shoulder 0.6 rad behind after 8 steps, `docs/executor.md`)."""
+    joint_velocity: Literal["instant", "step_mean"] = "instant"
+    """What the joint-velocity term compares with the target frame's joint velocities (themselves
+    a central difference of the clip's frames, `common.motion.reference`): instant, the
+    simulator's joint velocities at the end of the control step (as UniCon writes it); step_mean,
+    the mean over the control step, `mj_differentiatePos` of the joint angles before and after
+    it, which leaves out the oscillation within the step of a joint pushed against its actuator's
+    force limit. Measured on the shipped PD executor (49.6 M steps, 24 clips x 10 starts):
+    train-split success 7.5% with step_mean against 10.6% with instant, so the default stays
+    (`docs/executor.md`, "The joint-velocity term": the feet carry most of the error)."""
     termination: Literal["per_term", "sum", "none"] = "per_term"
     """per_term: end the episode as soon as any of the five reward terms falls below `alpha`
     (UniCon's constrained objective, eq. 6); sum: only when the weighted sum falls below `alpha`

@@ -15,29 +15,36 @@ from learner.presets import PRESETS
 from tests.learner.evaluation.executor_checkpoints import tiny_executor
 
 
-def _pair(seed: int = 3):
+def _pair(seed: int = 3, velocity_target: bool = True):
     from common.tasks.executor import ExecutorEnv
 
-    pd_task = dataclasses.replace(PRESETS["executor-pd"][1].task)
+    preset = PRESETS["executor-pd"][1].task
+    pd_task = dataclasses.replace(preset, executor=dataclasses.replace(preset.executor, pd_velocity_target=velocity_target))
     torque_task = dataclasses.replace(pd_task, executor=dataclasses.replace(pd_task.executor, actuation="torque"))
     return ExecutorEnv(torque_task, seed=seed), ExecutorEnv(pd_task, seed=seed)
 
 
-def test_the_label_is_the_pd_force_averaged_over_the_step_with_the_passive_damping_given_back():
+@pytest.mark.parametrize("velocity_target", [False, True])
+def test_the_label_is_the_pd_force_averaged_over_the_step_with_the_passive_damping_given_back(velocity_target: bool):
     """On the real humanoid, from a reset state: the label times the efforts equals the PD
     actuator force averaged over the substeps (run by hand here) plus the torque model's passive
-    damping force at each substep's velocity, within the clip."""
+    damping force at each substep's velocity, within the clip; with the PD's target velocity
+    (`pd_velocity_target`) its target leads the frame by kd / kp times the frame's joint velocity."""
     import mujoco
 
     from learner.distill import TorqueLabeler
 
-    torque_env, pd_env = _pair()
+    torque_env, pd_env = _pair(velocity_target=velocity_target)
     labeler = TorqueLabeler(torque_env, pd_env.model, pd_env.ex.pd_action_scale)
     rng = np.random.default_rng(0)
     for trial in range(3):
         torque_env.reset(trial, torque_env.space.default_array)
         action = rng.normal(0.0, 0.3, torque_env.act_dim)
-        target = torque_env.layout.to_vector(torque_env.scheduler.frame(1).qpos)
+        frame = torque_env.scheduler.frame(1)
+        target = torque_env.layout.to_vector(frame.qpos)
+        if velocity_target:  # position actuators: force kp (ctrl - q) - kd qdot
+            kp, kd = pd_env.model.actuator_gainprm[:, 0], -pd_env.model.actuator_biasprm[:, 2]
+            target = target + kd / kp * frame.qvel[6:]
         u = labeler.label(action)
         d = mujoco.MjData(pd_env.model)
         d.qpos[:], d.qvel[:] = torque_env.data.qpos, torque_env.data.qvel

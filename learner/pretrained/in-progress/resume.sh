@@ -8,24 +8,19 @@
 # Usage: bash learner/pretrained/in-progress/resume.sh [--dry-run] [name ...]   (default: the first run of ORDER)
 #   --dry-run: print each run's command (one line each) instead of starting it
 # One run takes the whole machine in local mode (two rollout actors and the learner on their own
-# cores: lb5-mb128 made 2,350 steps/s so, against 800 in serial mode beside another serial run);
+# cores: lb5-mb128, now learner/pretrained/lower_biped-smooth, made 2,350 steps/s so, against 800
+# in serial mode beside another serial run);
 # several runs named at once each run in serial mode (one process, no Ray) and share the cores.
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
 HERE=learner/pretrained/in-progress
-# issue 23 item 5: the lower biped from nothing on the smoothed, lifted reference (its arm with
-# 10 x 512 minibatches was stopped at 2 M: docs/benchmarks.md)
-LB5_STAGES="0.25:2M 0.5:5M 0.75:10M 1:30M"  # 20 M (the issue) reached: 26.3%; on to find where it crosses 20.7%
-LB5="--preset lower_biped --ppo.gamma 0.99 --task.imitate.retarget-root-height contact_smooth --task.imitate.retarget-body-clearance-m 0.01"
 declare -A ARGS=(
   [manta-course]="learner.main --preset manta"
   [manta-nocourse]="learner.main --preset manta --task.imitate.no-observe-course"
   [executor-torque]="learner.main --preset executor"
-  [executor-pd-g99]="learner.main --preset executor-pd --ppo.gamma 0.99"
-  [lb5-mb128]="learner.curriculum --stages $LB5_STAGES -- $LB5"
 )
-ORDER=(lb5-mb128 manta-course executor-pd-g99 executor-torque)  # what to resume first
-FRESH=(manta-course lb5-mb128)
+ORDER=(executor-torque manta-course)  # what to resume first
+FRESH=(manta-course)
 DRY=0
 if [ "${1:-}" = "--dry-run" ]; then DRY=1; shift; fi
 names=("$@")

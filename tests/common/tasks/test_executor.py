@@ -263,6 +263,27 @@ def test_pd_velocity_target_tracks_a_fast_clip_longer():
     assert term[True] > 2 * term[False]
 
 
+def test_joint_velocity_term_instant_or_over_the_control_step():
+    """`joint_velocity = "step_mean"` compares the control step's mean joint velocity (the angle
+    change over the step, quaternion-aware) with the frame's; "instant" the simulator's qvel at the
+    step's end. Checked by hand on one PD step of the dance, where the two differ."""
+    terms = {}
+    for measure in ("instant", "step_mean"):
+        env = make_env(cfg_with(actuation="pd", reactive_init=False, termination="none", joint_velocity=measure,
+                                clips=("humanoid3d_dance_a",)), seed=0)
+        env.reset(0, env.space.default_array, start_s=0.3)
+        before = env.qpos.copy()
+        _, _, _, _, info = env.step(np.zeros(env.act_dim))
+        mean = np.empty(env.nv)
+        mujoco.mj_differentiatePos(env.ref_model, mean, env.dt, before, env.qpos)
+        qdot = mean if measure == "step_mean" else env.data.qvel[: env.nv]
+        ref = env.scheduler.frame(0).qvel[6:]
+        expected = math.exp(-CFG.executor.reward_scales[4] * float(np.sum((qdot[6:] - ref) ** 2)))
+        assert info["terms"]["joint_velocity"] == pytest.approx(expected, rel=1e-9)
+        terms[measure] = info["terms"]["joint_velocity"]
+    assert terms["instant"] != pytest.approx(terms["step_mean"], rel=1e-3)
+
+
 # ---- clips, split, scheduler ----
 
 def test_train_and_test_splits_are_disjoint_and_cover_the_library():

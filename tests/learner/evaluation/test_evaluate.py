@@ -380,7 +380,7 @@ def test_every_shipped_checkpoint_runs_with_this_code(name: str, tmp_path: Path)
     assert len(json.loads((out / "results.json").read_text())["shapes"]) == 2
 
 
-@pytest.mark.parametrize("name", ["quadruped", "quadruped-curriculum", "lower_biped-curriculum", "biped", "fish", "manta"])
+@pytest.mark.parametrize("name", ["quadruped", "quadruped-curriculum", "lower_biped-curriculum", "lower_biped-smooth", "biped", "fish", "manta"])
 def test_shipped_controller_stays_up_through_a_moderate_morph(name: str) -> None:
     """A shipped controller through the default schedule at half strength (taller, shorter,
     wider, back: 18 s, a rebuild every control step; a few seconds each). The shipped
