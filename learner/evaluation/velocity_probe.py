@@ -1,0 +1,168 @@
+"""`morphmimic velocity-probe --checkpoint X`: where an executor's joint-velocity term breaks.
+
+    morphmimic velocity-probe --checkpoint learner/pretrained/executor               # ankles left out
+    morphmimic velocity-probe --checkpoint learner/pretrained/executor --leave-out ankle knee
+
+UniCon's constrained rule (METHOD.md B, eq. 6) ends an episode when any of the five reward terms
+falls below alpha; the joint-velocity term r_wj = exp(-k sum ||qdot - qdot~||^2) (eq. 5) sums
+over every joint DOF, so one fast-moving light segment can break it. On the evaluation's episodes
+(`executor_eval.run_episode`: every clip of a split, `--starts` start frames each, the mean
+action), per split:
+- success: UniCon's rule (all five terms); pose success: the four pose terms;
+- success with the `--leave-out` joints' DOF left out of the velocity term (analysis only: the
+  pose terms and the other DOF's velocity term must still stay at or above alpha);
+- at the first step of each episode where r_wj falls below alpha: the median summed squared
+  error ((rad/s)^2; the term breaks above -ln(alpha)/k), the share of it per joint, and how often
+  a body of a left-out joint touches something then (for the ankles: a foot on the floor).
+Prints a markdown table; `--out` also writes `velocity_probe.md` and `.json`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from learner.evaluation import cli_args
+
+
+def joint_of_dof(model) -> list[str]:
+    """The joint name of each non-root DOF `[nv - 6]`."""
+    import mujoco
+
+    return [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, int(model.dof_jntid[d])) for d in range(6, model.nv)]
+
+
+def left_out_mask(joints: list[str], patterns: list[str]) -> np.ndarray:
+    """DOF mask `[nv - 6]` of the joints whose name contains one of `patterns`; ValueError naming a
+    pattern that matches no joint, with the joints there are."""
+    mask = np.zeros(len(joints), dtype=bool)
+    for pat in patterns:
+        hit = np.array([pat in name for name in joints])
+        if not hit.any():
+            raise ValueError(f"--leave-out {pat!r} matches no joint; the joints are {', '.join(sorted(set(joints)))}")
+        mask |= hit
+    return mask
+
+
+class EpisodeProbe:
+    """The `on_step` hook of one episode: the velocity error per DOF at the first step where r_wj
+    falls below alpha, and whether the episode holds with the left-out DOF ignored."""
+
+    def __init__(self, env, left_out: np.ndarray):
+        from common.tasks import executor_rewards as rw
+
+        self.pose_terms, self.k, self.alpha = rw.POSE_TERMS, env.ex.reward_scales[4], env.ex.alpha
+        self.left_out = left_out
+        dof_body = env.ref_model.jnt_bodyid[env.ref_model.dof_jntid[6:]]
+        self.left_out_bodies = {int(b) for b in dof_body[left_out]}
+        self.first_break: np.ndarray | None = None
+        self.touching = False
+        self.holds_without = True
+
+    def __call__(self, env, k: int) -> None:
+        err = (env.data.qvel[6 : env.nv] - env.scheduler.frame(0).qvel[6:]) ** 2
+        terms = env.last_terms
+        kept = float(err[~self.left_out].sum())
+        if any(terms[n] < self.alpha for n in self.pose_terms) or math.exp(-self.k * kept) < self.alpha:
+            self.holds_without = False
+        if self.first_break is None and terms["joint_velocity"] < self.alpha:
+            self.first_break = err
+            d, m = env.data, env.model
+            self.touching = any(int(m.geom_bodyid[g]) in self.left_out_bodies
+                                for c in d.contact[: d.ncon] for g in (c.geom1, c.geom2))
+
+
+def probe_split(env, policy, clips, starts: int, left_out: np.ndarray, joints: list[str]) -> dict[str, Any]:
+    """The figures of the module docstring over one split's clips."""
+    from learner.evaluation import executor_eval as xe
+
+    durations = xe.clip_durations(env, clips)
+    n = success = pose = without = touching = 0
+    breaks: list[float] = []
+    share: dict[str, float] = defaultdict(float)
+    for clip in clips:
+        for start in xe.start_times(durations[clip.clip_id], starts):
+            hook = EpisodeProbe(env, left_out)
+            rec = xe.run_episode(env, policy, clip.clip_id, start, "per_term", 0, on_step=hook)  # the rule only sets rec["return"]
+            n += 1
+            success += rec["success"]
+            pose += rec["pose_success"]
+            without += hook.holds_without and not rec["diverged"]
+            if hook.first_break is not None:
+                total = float(hook.first_break.sum())
+                breaks.append(total)
+                touching += hook.touching
+                for name, e in zip(joints, hook.first_break):
+                    share[name] += e / total
+    pct = lambda x: 100.0 * x / max(n, 1)  # noqa: E731
+    return {
+        "episodes": n, "success_pct": pct(success), "pose_success_pct": pct(pose), "success_left_out_pct": pct(without),
+        "breaks": len(breaks), "median_break_error": float(np.median(breaks)) if breaks else None,
+        "touching_at_break_pct": 100.0 * touching / len(breaks) if breaks else None,
+        "joint_share_pct": {j: 100.0 * v / len(breaks) for j, v in sorted(share.items(), key=lambda kv: -kv[1])},
+    }
+
+
+def report(name: str, left_out: list[str], threshold: float, rows: dict[str, dict]) -> str:
+    """The markdown table of `probe_split`'s figures per split."""
+    lines = [f"# Where the joint-velocity term of `{name}` breaks", "",
+             f"Left out of the velocity term for the third column: joints matching {', '.join(left_out)}. "
+             f"The term falls below alpha when the summed squared error exceeds {threshold:.1f} (rad/s)^2.", "",
+             "| split | episodes | success % | success %, left out | pose success % | episodes where r_wj breaks "
+             "| median error there | left-out body touching % | largest shares of the error (joint %) |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for split, r in rows.items():
+        top = ", ".join(f"{j} {v:.0f}" for j, v in list(r["joint_share_pct"].items())[:5])
+        med = "-" if r["median_break_error"] is None else f"{r['median_break_error']:.1f}"
+        touch = "-" if r["touching_at_break_pct"] is None else f"{r['touching_at_break_pct']:.0f}"
+        lines.append(f"| {split} | {r['episodes']} | {r['success_pct']:.1f} | {r['success_left_out_pct']:.1f} | "
+                     f"{r['pose_success_pct']:.1f} | {r['breaks']} | {med} | {touch} | {top} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str]) -> int:
+    from learner.evaluation import eval_core
+    from learner.evaluation import executor_eval as xe
+
+    p = argparse.ArgumentParser(prog="morphmimic velocity-probe", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--checkpoint", required=True, help="checkpoint dir, state.pt or run dir of an executor run")
+    p.add_argument("--starts", type=cli_args.positive_int, default=10, help="start frames per clip (the evaluation's)")
+    p.add_argument("--splits", nargs="+", choices=("train", "test", "unused"), default=["train", "test"])
+    p.add_argument("--leave-out", nargs="+", default=["ankle"], metavar="JOINT",
+                   help="joints (by part of their name) left out of the velocity term for the third column")
+    p.add_argument("--out", default="", help="output directory (default: none, print only)")
+    args = p.parse_args(argv)
+    loaded = eval_core.load(args.checkpoint)
+    if loaded.cfg.task.name != "executor":
+        p.error(f"--checkpoint {args.checkpoint} is a {loaded.cfg.task.name!r} checkpoint; the probe needs an executor")
+    clips = xe.default_clips(loaded.cfg.task, args.splits)
+    env = xe.make_eval_env(loaded, clips)
+    joints = joint_of_dof(env.ref_model)
+    try:
+        mask = left_out_mask(joints, args.leave_out)
+    except ValueError as exc:
+        p.error(str(exc))
+    policy = eval_core.make_policy(loaded, env.obs_dim, env.nu)
+    rows = {split: probe_split(env, policy, [c for c in clips if c.split == split], args.starts, mask, joints)
+            for split in args.splits}
+    threshold = -math.log(loaded.cfg.task.executor.alpha) / loaded.cfg.task.executor.reward_scales[4]
+    text = report(loaded.cfg.name, args.leave_out, threshold, rows)
+    if args.out:
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "velocity_probe.md").write_text(text)
+        (out / "velocity_probe.json").write_text(json.dumps({"leave_out": args.leave_out, "splits": rows}, indent=1) + "\n")
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))
