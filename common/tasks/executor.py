@@ -242,7 +242,7 @@ class ExecutorEnv:
         lookback = self.ex.rsis_frames[1] + 1
         self.scheduler = DatasetScheduler(self.ref_model, self._motion, balancer.clip_ids, balancer.probabilities, self.dt,
                                           speed=self.ex.speed, at_end=self.ex.at_clip_end, lookback=lookback,
-                                          lookahead=self.ex.tau + 1)
+                                          lookahead=self.ex.tau + 1, velocity_window=self.ex.target_velocity_window)
         self.balls = [self.model.body(f"projectile{i}").id for i in range(PROJECTILES)] if self.ex.projectile else []
         self._thrown_at = [-1] * len(self.balls)
         self._next_ball = 0

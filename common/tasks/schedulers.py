@@ -111,7 +111,8 @@ class DatasetScheduler:
 
     def __init__(self, model: mujoco.MjModel, motion: MotionFn, clip_ids: Sequence[str], probabilities: np.ndarray,
                  dt_s: float, *, speed: float = 1.0, at_end: str = "reschedule", lookback: int = 12, lookahead: int = 2,
-                 max_deviation_m: float | None = None, on_deviation: str = "realign", deviation_grace_steps: int = 10):
+                 max_deviation_m: float | None = None, on_deviation: str = "realign", deviation_grace_steps: int = 10,
+                 velocity_window: int = 1):
         if not clip_ids:
             raise ValueError("DatasetScheduler needs at least one clip")
         if at_end not in ("reschedule", "stop"):
@@ -128,6 +129,9 @@ class DatasetScheduler:
         self.clip_ids = tuple(clip_ids)
         self.probabilities = np.asarray(probabilities, dtype=np.float64)
         self.dt, self.speed, self.at_end = float(dt_s), float(speed), at_end
+        if not (isinstance(velocity_window, int) and 1 <= velocity_window <= 30):
+            raise ValueError(f"velocity_window {velocity_window!r} must be a whole number of control steps in 1 .. 30")
+        self.velocity_window = velocity_window
         self.lookback, self.lookahead = int(lookback), int(lookahead)
         self.clip_id = ""
         self._done = False
@@ -162,7 +166,7 @@ class DatasetScheduler:
         # NOTE: differences over +-1 control step of clip time, kept inside the clip at its ends
         # (a centred window over the held first/last frame saw half the motion: a run's start
         # frame got half its speed); times `speed` (clip seconds per real second): real-time velocities.
-        v = m.qvel_at(times, self.dt * self.speed) * self.speed
+        v = m.qvel_at(times, self.velocity_window * self.dt * self.speed) * self.speed
         yaw, shift = 0.0, np.zeros(3)
         if align_to is not None:
             start = q[self.lookback + 1]

@@ -304,6 +304,26 @@ def test_unknown_clip_is_a_clear_error():
         env.reset(0, env.space.default_array, "mass/walk")
 
 
+def test_target_velocity_window_differences_the_clip_over_that_many_steps():
+    """`target_velocity_window = w`: the target frames' velocities are the clip's differences over
+    +-w control steps (checked against `CharacterMotion.qvel_at`); a wider window is smoother on
+    a fast clip (smaller frame-to-frame changes); 0 or 31 steps are refused by name."""
+    jumps = {}
+    for w in (1, 3):
+        env = make_env(cfg_with(reactive_init=False, target_velocity_window=w, clips=("humanoid3d_run",)), seed=0)
+        env.reset(0, env.space.default_array, start_s=0.2)
+        s = env.scheduler
+        t = s.t0 + np.arange(4) * env.dt
+        want = env._motion("humanoid3d_run").qvel_at(t, w * env.dt)
+        got = np.array([s.frame(i).qvel for i in range(4)])
+        np.testing.assert_allclose(got[:, 6:], want[:, 6:], atol=1e-9)
+        jumps[w] = float(np.abs(np.diff(got[:, 6:], axis=0)).mean())
+    assert jumps[3] < jumps[1]
+    for bad in (0, 31):
+        with pytest.raises(ValueError, match="target_velocity_window|target-velocity-window"):
+            cfg_with(target_velocity_window=bad).validate()
+
+
 def test_dataset_scheduler_reschedules_at_the_clip_end(env):
     env.reset(0, env.space.default_array)
     s = env.scheduler
