@@ -182,7 +182,7 @@ def _executor_preset(variant: str = "") -> RunConfig:
     (`pd_velocity_target`; since 2026-12-04): two arms forked from one PD checkpoint at 14.7 M
     steps and trained side by side to 32.8 M, with the switch and without, tracked 8.8-13.1%
     against 1.2-2.5% of train starts with all five terms above 0.1 and 17.5-22.5% against
-    6.2-10.0% of held-out starts with the pose terms (five checkpoints each, iterations
+    6.2-10.0% of held-out starts with the pose terms (six checkpoints each, iterations
     3700-4000; docs/executor.md). `--task.executor.no-pd-velocity-target` restores the old PD.
     Variants for the ablations: "pd" (PD targets), "noterm" (the sum rule instead of per-term
     termination), "uniform" (uniform clip draws instead of the balancer), "norsis" (start on

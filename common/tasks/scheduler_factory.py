@@ -55,7 +55,7 @@ def make_scheduler(name: str, env: Any, **options: Any) -> Scheduler:
 
 def _dataset(env: Any, frames: dict, *, clips: tuple[str, ...] = (), **options: Any) -> Scheduler:
     """A dataset scheduler over `clips` (drawn uniformly) or, by default, the task's clips drawn
-    by the motion balancer; options default to the task's (speed, at_end)."""
+    by the motion balancer; options default to the task's (speed, at_end, target velocity window)."""
     import numpy as np
 
     from common.tasks.schedulers import DatasetScheduler
@@ -72,6 +72,7 @@ def _dataset(env: Any, frames: dict, *, clips: tuple[str, ...] = (), **options: 
         ids, probs = balancer.clip_ids, balancer.probabilities
     options.setdefault("speed", env.ex.speed)
     options.setdefault("at_end", env.ex.at_clip_end)
+    options.setdefault("velocity_window", env.ex.target_velocity_window)
     return DatasetScheduler(env.ref_model, env._motion, ids, probs, env.dt, **frames, **options)
 
 

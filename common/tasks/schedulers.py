@@ -104,7 +104,7 @@ class DatasetScheduler:
     The frames of the current schedule are sampled once on the control grid t0 + k dt speed
     (vectorized: per-step slerps in Python would cost more than the physics), from
     `lookback` steps before the start to the clip's end plus the lookahead; velocities are
-    differences over +-1 control step (`CharacterMotion.qvel_at`: centred inside the clip,
+    differences over +-`velocity_window` control steps (`CharacterMotion.qvel_at`: centred inside the clip,
     one-sided at its first and last frames), in real time, so a faster playback has faster
     targets.
     """
@@ -129,7 +129,7 @@ class DatasetScheduler:
         self.clip_ids = tuple(clip_ids)
         self.probabilities = np.asarray(probabilities, dtype=np.float64)
         self.dt, self.speed, self.at_end = float(dt_s), float(speed), at_end
-        if not (isinstance(velocity_window, int) and 1 <= velocity_window <= 30):
+        if isinstance(velocity_window, bool) or not (isinstance(velocity_window, int) and 1 <= velocity_window <= 30):
             raise ValueError(f"velocity_window {velocity_window!r} must be a whole number of control steps in 1 .. 30")
         self.velocity_window = velocity_window
         self.lookback, self.lookahead = int(lookback), int(lookahead)
@@ -163,7 +163,7 @@ class DatasetScheduler:
         rows = np.arange(-self.lookback - 1, self.last_k + self.lookahead + 2)
         times = self.t0 + rows * self.dt * self.speed
         q = np.atleast_2d(m.qpos(times))
-        # NOTE: differences over +-1 control step of clip time, kept inside the clip at its ends
+        # NOTE: differences over +-velocity_window control steps of clip time, kept inside the clip at its ends
         # (a centred window over the held first/last frame saw half the motion: a run's start
         # frame got half its speed); times `speed` (clip seconds per real second): real-time velocities.
         v = m.qvel_at(times, self.velocity_window * self.dt * self.speed) * self.speed

@@ -319,6 +319,9 @@ def test_target_velocity_window_differences_the_clip_over_that_many_steps():
         np.testing.assert_allclose(got[:, 6:], want[:, 6:], atol=1e-9)
         jumps[w] = float(np.abs(np.diff(got[:, 6:], axis=0)).mean())
     assert jumps[3] < jumps[1]
+    from common.tasks.scheduler_factory import make_scheduler
+
+    assert make_scheduler("dataset", env).velocity_window == 3  # `morphmimic play` plays as the task trained
     for bad in (0, 31):
         with pytest.raises(ValueError, match="target_velocity_window|target-velocity-window"):
             cfg_with(target_velocity_window=bad).validate()
