@@ -97,7 +97,7 @@ def _shape_preset(character: str, parameterization: str, plot: tuple[str, str], 
         name=character, control_hz=30.0, sim_hz=480.0, episode_s=30.0,
         body=BodyConfig(parameterization=parameterization, vary_shape=variant != "fixedshape"),
         imitate=ImitateConfig(reward_normalization=variant != "nonorm", max_root_deviation=1.0 if swimmer else 0.0,
-                              shin_contact_is_fall=character != "quadruped", pd_gains_follow_torque=True,
+                              pd_gains_follow_torque=True,
                               swimmer_speed="stroke_fit" if character == "manta" else "length",
                               observe_course=character == "manta"),
     )

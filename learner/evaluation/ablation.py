@@ -43,6 +43,13 @@ def describe(cfg) -> str:
     return ", ".join(parts)
 
 
+def current_body_digest(loaded: eval_core.Loaded) -> str:
+    """`eval_core.body_digest` of the checkpoint's task as this tree builds it."""
+    from common.tasks.registry import make_env
+
+    return eval_core.body_digest(make_env(eval_core.eval_task(loaded.cfg.task, 1.0), seed=0))
+
+
 def evaluate_one(ckpt: str, out: Path, args: argparse.Namespace, folder: str = "") -> dict:
     """Evaluate one checkpoint into `<out>/<folder>` (default: its run name)."""
     loaded = eval_core.load(ckpt)
@@ -56,7 +63,8 @@ def evaluate_one(ckpt: str, out: Path, args: argparse.Namespace, folder: str = "
                 and meta.get("root_height", loaded.cfg.task.imitate.retarget_root_height)
                 == loaded.cfg.task.imitate.retarget_root_height
                 and meta.get("clearance_m", loaded.cfg.task.imitate.retarget_body_clearance_m)
-                == loaded.cfg.task.imitate.retarget_body_clearance_m):
+                == loaded.cfg.task.imitate.retarget_body_clearance_m
+                and meta.get("body_digest") == current_body_digest(loaded)):
             print(f"[ablation] reusing {res_file}", flush=True)
             return {"loaded": loaded, **old}
     from learner.evaluation import evaluate

@@ -47,7 +47,7 @@ def parse(argv: list[str]) -> argparse.Namespace:
                    help="draw the shapes from the box shrunk toward the base shape by this factor, as "
                         "--task.body.shape-box-scale does in training (a curriculum's progress); 1: the paper's protocol")
     p.add_argument("--fall-rule", choices=("task", "paper"), default="task",
-                   help="what ends an episode: the task's own rule (the quadruped's shins may touch the floor) or "
+                   help="what ends an episode: the task's own rule (checkpoints trained with --task.imitate.no-shin-contact-is-fall, as the quadruped's before 2026-12-04, let the shins touch) or "
                         "Won & Lee's (any body but the feet); both fall-down rates are reported either way")
     p.add_argument("--root-height", choices=ROOT_HEIGHT_RULES, default=None,
                    help="retarget the reference with this root-height rule instead of the checkpoint's "
@@ -232,7 +232,7 @@ def main(argv: list[str]) -> int:
     meta = {"checkpoint": str(loaded.path), "name": loaded.name, "iteration": int(loaded.state.get("iteration", 0)),
             "env_steps": int(loaded.state.get("env_steps", 0)), "seed": args.seed, "episode_s": args.episode_s,
             "box_scale": args.box_scale, "param_names": list(space.names), "map_params": names,
-            "fall_rule": args.fall_rule,
+            "fall_rule": args.fall_rule, "body_digest": eval_core.body_digest(env),
             "root_height": args.root_height or loaded.cfg.task.imitate.retarget_root_height,
             "clearance_m": loaded.cfg.task.imitate.retarget_body_clearance_m if args.clearance is None else args.clearance}
     if env.character.is_swimmer:

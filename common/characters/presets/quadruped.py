@@ -15,6 +15,15 @@ from common.characters.shape_space import BodyPart, ShapeParam, ShapeSpace, rand
 
 LEGS = {"fl": (0.30, 0.11), "fr": (0.30, -0.11), "hl": (-0.30, 0.11), "hr": (-0.30, -0.11)}
 THIGH_M, SHANK_M = 0.24, 0.24
+SHANK_R, SHANK_HALF = 0.02, 0.09
+"""The shank is a capsule of radius 2 cm from 2 cm below the knee to 4 cm above the ankle
+(its round end 2 cm clear of the ankle); the foot box reaches 2 cm above the ankle to meet it.
+Before 2026-12-04 the shank was 3 cm thick and reached 1 cm past the ankle: the shape operator
+scales a capsule's radius with the segment's width and its length with its height, so on short,
+wide shapes the shank hung below the foot's sole (13.7% of the 300 evaluation shapes in the
+retargeted trot, 22.7% within 5 mm) and stood on the floor, a fall by Won & Lee's rule from the
+first step. Now no shape's reference puts a shank into the floor (4 of 300 within 5 mm, in the
+trot's steepest frames; `morphmimic evaluate` tables falls by this clearance)."""
 
 
 def build(timestep_s: float) -> BaseCharacter:
@@ -38,9 +47,9 @@ def build(timestep_s: float) -> BaseCharacter:
         thigh = builder.add_body(trunk, f"{leg}_thigh", (x, y, -0.05),
                                  [GeomDef("capsule", (0.04, THIGH_M / 2 - 0.02), 2.0, (0.0, 0.0, -THIGH_M / 2))], [hip])
         shank = builder.add_body(thigh, f"{leg}_shank", (0.0, 0.0, -THIGH_M),
-                                 [GeomDef("capsule", (0.03, SHANK_M / 2 - 0.02), 1.0, (0.0, 0.0, -SHANK_M / 2))], [knee])
+                                 [GeomDef("capsule", (SHANK_R, SHANK_HALF), 1.0, (0.0, 0.0, -0.02 - SHANK_HALF))], [knee])
         builder.add_body(shank, f"{leg}_foot", (0.0, 0.0, -SHANK_M),
-                         [GeomDef("box", (0.06, 0.04, 0.02), 0.3, (0.02, 0.0, -0.02))], ankle)
+                         [GeomDef("box", (0.06, 0.04, 0.03), 0.3, (0.02, 0.0, -0.01))], ankle)
         joints += [hip, knee, *ankle]
         parts += [BodyPart(f"{leg}_thigh", groups, 2), BodyPart(f"{leg}_shank", groups, 2),
                   BodyPart(f"{leg}_foot", ("foot",), 0)]

@@ -219,6 +219,28 @@ def test_ablation_table_has_one_row_per_checkpoint(tmp_path: Path) -> None:
     assert len(json.loads((out / "ablation.json").read_text())) == 2
 
 
+def test_ablation_reuses_results_only_when_measured_on_the_same_body(tmp_path: Path, capsys) -> None:
+    """A results.json records the base character's digest; one measured on another body (a
+    geometry change between commits) is evaluated again, not reused."""
+    from learner.evaluation import ablation
+
+    _tiny_checkpoint(tmp_path, "norm")
+    out = tmp_path / "abl"
+    argv = ["--checkpoints", str(tmp_path / "norm"), "--shapes", "2", "--episode-s", "0.3", "--out", str(out)]
+    assert ablation.main(argv) == 0
+    res = out / "norm" / "results.json"
+    saved = json.loads(res.read_text())
+    assert len(saved["meta"]["body_digest"]) == 12
+    capsys.readouterr()
+    assert ablation.main(argv) == 0
+    assert "[ablation] reusing" in capsys.readouterr().out
+    saved["meta"]["body_digest"] = "0" * 12  # as if measured on another body
+    res.write_text(json.dumps(saved))
+    assert ablation.main(argv) == 0
+    assert "[ablation] reusing" not in capsys.readouterr().out
+    assert len(json.loads(res.read_text())["meta"]["body_digest"]) == 12 and json.loads(res.read_text())["meta"]["body_digest"] != "0" * 12
+
+
 @pytest.mark.parametrize("norm_falls, nonorm_falls, adaptive_map, uniform_map, says", [
     (10.0, 30.0, 0.6, 0.3, ("normalization lowers falls: **reproduces**", "return map: **reproduces**",
                             "extreme shapes fall less: **reproduces**")),
