@@ -43,11 +43,23 @@ def describe(cfg) -> str:
     return ", ".join(parts)
 
 
-def current_body_digest(loaded: eval_core.Loaded) -> str:
-    """`eval_core.body_digest` of the checkpoint's task as this tree builds it."""
-    from common.tasks.registry import make_env
+def _still_valid(res_file: Path, loaded: eval_core.Loaded, args: argparse.Namespace) -> bool:
+    """Whether an earlier results.json measured this checkpoint by this protocol on the body this
+    tree builds; a file that is not such a results.json is measured again, not trusted."""
+    from common.tasks.imitate import character_preset
 
-    return eval_core.body_digest(make_env(eval_core.eval_task(loaded.cfg.task, 1.0), seed=0))
+    imitate = loaded.cfg.task.imitate
+    try:
+        old = json.loads(res_file.read_text())
+        meta = old["meta"]
+        return bool(meta["checkpoint"] == str(loaded.path) and meta["seed"] == args.seed
+                    and meta["episode_s"] == args.episode_s and old["summary"]["shapes"] == args.shapes
+                    and meta.get("fall_rule", "task") == args.fall_rule
+                    and meta.get("root_height", imitate.retarget_root_height) == imitate.retarget_root_height
+                    and meta.get("clearance_m", imitate.retarget_body_clearance_m) == imitate.retarget_body_clearance_m
+                    and meta.get("body_digest") == eval_core.body_digest(character_preset(loaded.cfg.task)))
+    except (ValueError, KeyError, TypeError, AttributeError):  # not JSON, or not an evaluation's results
+        return False
 
 
 def evaluate_one(ckpt: str, out: Path, args: argparse.Namespace, folder: str = "") -> dict:
@@ -55,18 +67,9 @@ def evaluate_one(ckpt: str, out: Path, args: argparse.Namespace, folder: str = "
     loaded = eval_core.load(ckpt)
     target = out / (folder or loaded.name)
     res_file = target / "results.json"
-    if res_file.exists():
-        old = json.loads(res_file.read_text())
-        meta = old["meta"]
-        if (meta["checkpoint"] == str(loaded.path) and meta["seed"] == args.seed and meta["episode_s"] == args.episode_s
-                and old["summary"]["shapes"] == args.shapes and meta.get("fall_rule", "task") == args.fall_rule
-                and meta.get("root_height", loaded.cfg.task.imitate.retarget_root_height)
-                == loaded.cfg.task.imitate.retarget_root_height
-                and meta.get("clearance_m", loaded.cfg.task.imitate.retarget_body_clearance_m)
-                == loaded.cfg.task.imitate.retarget_body_clearance_m
-                and meta.get("body_digest") == current_body_digest(loaded)):
-            print(f"[ablation] reusing {res_file}", flush=True)
-            return {"loaded": loaded, **old}
+    if res_file.exists() and _still_valid(res_file, loaded, args):
+        print(f"[ablation] reusing {res_file}", flush=True)
+        return {"loaded": loaded, **json.loads(res_file.read_text())}
     from learner.evaluation import evaluate
 
     argv = ["--checkpoint", ckpt, "--shapes", str(args.shapes), "--seed", str(args.seed), "--episode-s",

@@ -168,18 +168,15 @@ def run_episode(env, policy: GaussianPolicy, params: np.ndarray, seed: int,
             "fell_paper_rule": fell_paper or fell or diverged, **bob, **(swim.result() if swim is not None else {})}
 
 
-def body_digest(env) -> str:
-    """12 hex digits of SHA-1 over the env's base character as MJCF (before any shape): results
-    measured on another body (a character's geometry changed between commits, as the quadruped's
-    shank did on 2026-12-04) are not reused by `morphmimic ablation`. "" without a character."""
+def body_digest(preset: str) -> str:
+    """12 hex digits of SHA-1 over a character preset's base body as MJCF (before any shape):
+    results measured on another body (a character's geometry changed between commits, as the
+    quadruped's shank did on 2026-12-04) are not reused by `morphmimic ablation`."""
     import hashlib
 
     from common.characters.character import build_base
 
-    character = getattr(env, "character", None)
-    if character is None:
-        return ""
-    return hashlib.sha1(build_base(character.preset).spec.to_xml().encode()).hexdigest()[:12]
+    return hashlib.sha1(build_base(preset).spec.to_xml().encode()).hexdigest()[:12]
 
 
 def reference_root_bob(env) -> dict[str, Any]:

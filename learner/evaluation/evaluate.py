@@ -232,7 +232,7 @@ def main(argv: list[str]) -> int:
     meta = {"checkpoint": str(loaded.path), "name": loaded.name, "iteration": int(loaded.state.get("iteration", 0)),
             "env_steps": int(loaded.state.get("env_steps", 0)), "seed": args.seed, "episode_s": args.episode_s,
             "box_scale": args.box_scale, "param_names": list(space.names), "map_params": names,
-            "fall_rule": args.fall_rule, "body_digest": eval_core.body_digest(env),
+            "fall_rule": args.fall_rule, "body_digest": eval_core.body_digest(env.character.preset),
             "root_height": args.root_height or loaded.cfg.task.imitate.retarget_root_height,
             "clearance_m": loaded.cfg.task.imitate.retarget_body_clearance_m if args.clearance is None else args.clearance}
     if env.character.is_swimmer:

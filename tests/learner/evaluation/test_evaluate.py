@@ -239,6 +239,10 @@ def test_ablation_reuses_results_only_when_measured_on_the_same_body(tmp_path: P
     assert ablation.main(argv) == 0
     assert "[ablation] reusing" not in capsys.readouterr().out
     assert len(json.loads(res.read_text())["meta"]["body_digest"]) == 12 and json.loads(res.read_text())["meta"]["body_digest"] != "0" * 12
+    for bad in ("{not json", "[]", '{"meta": 3}'):  # a file that is not an evaluation's results: measured again
+        res.write_text(bad)
+        assert ablation.main(argv) == 0
+        assert "[ablation] reusing" not in capsys.readouterr().out and "body_digest" in json.loads(res.read_text())["meta"]
 
 
 @pytest.mark.parametrize("norm_falls, nonorm_falls, adaptive_map, uniform_map, says", [
