@@ -13,7 +13,9 @@ import base64
 import io
 import itertools
 import json
+import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -46,7 +48,7 @@ class Chromium:
             [exe, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--mute-audio",
              "--no-first-run", "--disable-extensions", "--remote-debugging-port=0", "--remote-debugging-address=127.0.0.1",
              f"--user-data-dir={self._profile.name}", f"--window-size={width},{height}", url],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)  # its helpers in one group
         try:
             port_file = Path(self._profile.name) / "DevToolsActivePort"
             end = time.monotonic() + timeout_s
@@ -108,7 +110,19 @@ class Chromium:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait(5)
-        self._profile.cleanup()
+        # NOTE: Chromium's helper processes (crashpad, renderers) can outlive the browser and still
+        # write into the profile while it is removed ("Directory not empty", seen under load):
+        # end the whole process group first, and retry the removal briefly.
+        try:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass
+        for attempt in range(10):
+            try:
+                self._profile.cleanup()
+                break
+            except OSError:
+                time.sleep(0.2)
 
     def __enter__(self) -> "Chromium":
         return self
