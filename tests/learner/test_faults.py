@@ -162,15 +162,22 @@ def test_sampler_outage_degrades_then_recovers_with_its_state(cluster, tmp_path)
             seen["ckpt_has_sampler"] = "sampler" in torch.load(latest / checkpoint.FILE, weights_only=True)
             ray.kill(handle, no_restart=False)  # Ray brings it back, empty, on a new port
             seen["restarted_at"] = it
-        if metrics["faults/sampler_restores"] >= 1:
+        if metrics["faults/sampler_restores"] >= 1 and "restored_at" not in seen:
             seen["restored_at"] = it
-            seen["vm_pairs"] = metrics.get("sampler/vm/pairs_seen", 0.0)
+            seen["restored_pairs"] = run.sampler.saved_state["meta"]["vm"]["pairs_seen"]
+        if "restored_at" in seen and "sampler/vm/pairs_seen" in metrics:
+            # The first tick the restored service answers (the one right after the restore may
+            # time out under load: its first MCMC refill runs in it).
+            seen["vm_pairs"] = metrics["sampler/vm/pairs_seen"]
             run.stop.event.set()
 
     assert train(_cfg(tmp_path, cluster.address, max_iterations=60), on_iteration=hook) == 0
     assert "restarted_at" in seen, f"actors never counted the outage: {seen}"
     assert "restored_at" in seen, f"the restarted sampler never got its state back: {seen}"
-    assert seen["vm_pairs"] > 0  # the restored marginal value kept what it had learned
+    assert "vm_pairs" in seen, f"the restored sampler never answered a tick: {seen}"
+    # The restored marginal value kept what it had learned: it counts at least the pairs of
+    # the checkpoint it was given (a live count never decreases; an empty one starts at 0).
+    assert seen["vm_pairs"] >= seen["restored_pairs"] > 0, seen
     assert seen["ckpt_has_sampler"]
     assert "sampler state unavailable" in next(tmp_path.glob("*/log.txt")).read_text()
 
