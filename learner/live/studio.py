@@ -68,6 +68,7 @@ class StudioGui:
         self._terms_plot = self._shape_plot = None
         self._terms_names: tuple[str, ...] = ()
         self._stop = threading.Event()
+        self._refresh_lock = threading.Lock()  # the panel's thread and a direct caller (tests) may refresh at once
         self._thread: threading.Thread | None = None
         gui = server.gui
         gui.configure_theme(control_width="large", show_share_button=False, brand_color=(46, 94, 170))
@@ -298,6 +299,12 @@ class StudioGui:
             self._stop.wait(REFRESH_S)
 
     def refresh(self) -> None:
+        """Bring the panel up to the core's state; one caller at a time (viser's folders allow one
+        `with` block each, and two callers rebuilding the session's controls at once raised)."""
+        with self._refresh_lock:
+            self._refresh()
+
+    def _refresh(self) -> None:
         snap = self.core.snapshot()
         if snap["generation"] != self._generation:
             self._rebuild_session_controls(snap)
