@@ -3,7 +3,7 @@ change it while it moves: the body (Won & Lee 2019's interactive character creat
 sliders that morph the walking character), the checkpoint, agent, clip and, for the executor,
 UniCon 2020's schedulers (keyboard steering, clip stitching), projectiles and mass.
 
-    morphmimic studio                                   # lower_biped-curriculum on http://127.0.0.1:8080
+    morphmimic studio                                   # lower_biped-20M on http://127.0.0.1:8080
     morphmimic studio --checkpoint learner/pretrained/executor --port 8090
     morphmimic studio --host 0.0.0.0                    # share it on the network
     morphmimic studio --seconds 30                      # stops by itself (tests, demos)
@@ -47,7 +47,8 @@ from learner.live.session import AGENTS
 from learner.live.studio_core import KEYS, SCHEDULERS, StudioCore, pretrained_checkpoints
 from learner.live.studio_scene import CharacterScene
 
-DEFAULT_CHECKPOINT = "lower_biped-curriculum"
+DEFAULT_CHECKPOINT = "lower_biped-20M"
+"""Trained on the current body (the slimmer shank) and stays up through a full-strength morph."""
 REFRESH_S = 0.25
 """How often the status line, the plots and the table are refreshed."""
 PLOT_POINTS = 240

@@ -14,18 +14,13 @@
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
 HERE=learner/pretrained/in-progress
-# lb6-shank: lb5-mb128's recipe (now learner/pretrained/lower_biped-smooth) on the slimmer shank box
-# (issue 23 item 5, 2026-12-04): does the lower biped pass the paper's 20.7% within 20 M steps?
-LB_STAGES="0.25:2M 0.5:5M 0.75:10M 1:20M"
-LB="--preset lower_biped --ppo.gamma 0.99 --task.imitate.retarget-root-height contact_smooth --task.imitate.retarget-body-clearance-m 0.01"
 declare -A ARGS=(
-  [lb6-shank]="learner.curriculum --stages $LB_STAGES -- $LB"
   [manta-course]="learner.main --preset manta"
   [manta-nocourse]="learner.main --preset manta --task.imitate.no-observe-course"
   [executor-torque]="learner.main --preset executor"
 )
-ORDER=(lb6-shank executor-torque manta-course)  # what to resume first
-FRESH=(manta-course lb6-shank)
+ORDER=(executor-torque manta-course)  # what to resume first
+FRESH=(manta-course)
 DRY=0
 if [ "${1:-}" = "--dry-run" ]; then DRY=1; shift; fi
 names=("$@")

@@ -407,7 +407,8 @@ def test_every_shipped_checkpoint_runs_with_this_code(name: str, tmp_path: Path)
 
 
 @pytest.mark.parametrize("name, strength", [("quadruped", 0.5), ("quadruped-curriculum", 0.5), ("lower_biped-curriculum", 0.3),
-                                            ("lower_biped-smooth", 0.5), ("biped", 0.5), ("fish", 0.5), ("manta", 0.5)])
+                                            ("lower_biped-smooth", 0.5), ("lower_biped-20M", 0.5), ("biped", 0.5), ("fish", 0.5),
+                                            ("manta", 0.5)])
 def test_shipped_controller_stays_up_through_a_moderate_morph(name: str, strength: float) -> None:
     """A shipped controller through the default schedule at half strength (taller, shorter,
     wider, back: 18 s, a rebuild every control step; a few seconds each). The shipped
