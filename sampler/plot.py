@@ -29,14 +29,19 @@ def _axes(space: ParamSpace, params: Sequence[str] | None) -> tuple[int, int]:
 
 
 def plot_marginal_value(vm: MarginalValue, space: ParamSpace, buffer: np.ndarray | None, path: str | Path,
-                        params: Sequence[str] | None = None, resolution: int = 64, title: str = "") -> Path:
+                        params: Sequence[str] | None = None, resolution: int = 64, title: str = "") -> Path | None:
     """Write a PNG of Vm over `params` (two names; default the first two), the other parameters
     held at the buffer's mean (or the space's default without a buffer), with the buffer's
     `[n, d]` points overlaid. A 1-D space gets Vm as a curve over the buffer's histogram.
-    Returns the path."""
+    Returns the path, or None (nothing written) when an axis has no width: a fixed body, such as
+    the executor's humanoid or a `-fixedshape` run, has no map to draw."""
     if space.dim == 1:
+        if space.high[0] <= space.low[0]:
+            return None
         return _plot_1d(vm, space, buffer, Path(path), resolution, title)
     i, j = _axes(space, params)
+    if space.high[i] <= space.low[i] or space.high[j] <= space.low[j]:
+        return None
     fixed = buffer.mean(axis=0) if buffer is not None and len(buffer) else space.default_array
     gi = np.linspace(space.low[i], space.high[i], resolution)
     gj = np.linspace(space.low[j], space.high[j], resolution)
@@ -85,8 +90,9 @@ def _plot_1d(vm: MarginalValue, space: ParamSpace, buffer: np.ndarray | None, pa
 
 
 def plot_state(state: dict[str, Any], space: ParamSpace, path: str | Path,
-               params: Sequence[str] | None = None, resolution: int = 64) -> Path:
-    """The same PNG from a sampler state (`SamplerClient.get_state()` or `ShapeSampler.state_dict()`)."""
+               params: Sequence[str] | None = None, resolution: int = 64) -> Path | None:
+    """The same PNG from a sampler state (`SamplerClient.get_state()` or `ShapeSampler.state_dict()`);
+    None when an axis has no width."""
     meta, arrays = state["meta"], state["arrays"]
     vm = MarginalValue(space.low_array, space.high_array, tuple(meta["vm"]["hidden"]))
     vm.load_state(meta["vm"], {k[3:]: np.asarray(v) for k, v in arrays.items() if k.startswith("vm/")})

@@ -102,7 +102,7 @@ def plot_vm_map(sampler_state: dict[str, Any], train_space: ParamSpace, names, p
     from sampler.plot import plot_state
 
     i, j = axes_of(train_space, names)
-    if not sampler_state or train_space.high[i] <= train_space.low[i] or train_space.high[j] <= train_space.low[j]:
+    if not sampler_state:
         return None
     return plot_state(sampler_state, train_space, path, params=[train_space.names[i], train_space.names[j]])
 

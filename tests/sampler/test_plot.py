@@ -33,3 +33,17 @@ def test_png_of_a_one_parameter_space(tmp_path):
     space = ParamSpace(names=("speed",), low=(0.5,), high=(2.0,))
     out = plot_state(trained_state(space), space, tmp_path / "vm1.png")
     assert out.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_no_png_when_an_axis_has_no_width(tmp_path):
+    """A fixed body (the executor's humanoid, a `-fixedshape` run) has no map: nothing is written
+    and matplotlib is not asked for a singular axis."""
+    import warnings
+
+    space = ParamSpace(names=("height", "arm"), low=(1.0, 0.5), high=(1.0, 1.5))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert plot_state(trained_state(space), space, tmp_path / "vm.png") is None
+    assert not (tmp_path / "vm.png").exists()
+    flat = ParamSpace(names=("speed",), low=(1.0,), high=(1.0,))
+    assert plot_state(trained_state(flat), flat, tmp_path / "vm1.png") is None
