@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Resume the training runs that did not finish in one session (see README.md beside this file).
 # Each run continues from runs/<name> if it has a checkpoint there, else from the checkpoint kept
-# here; a run listed in FRESH may start from nothing when neither exists (any other run stops
-# with an error rather than silently start over).
+# here, else (a run listed in FORK) from the shared checkpoint it was forked from; a run listed in
+# FRESH may start from nothing when none exists (any other run stops with an error rather than
+# silently start over).
 # A run is either `learner.main ...` or `learner.curriculum --stages ... -- ...` (the curriculum
 # skips the stages its checkpoint has passed; a checkpoint kept here is a fork it counts from).
 # Usage: bash learner/pretrained/in-progress/resume.sh [--dry-run] [name ...]   (default: the first run of ORDER)
@@ -14,13 +15,20 @@
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
 HERE=learner/pretrained/in-progress
+# lbabl-*: Won & Lee's ablations on the lower biped (issue 23 item 2), forked at 12.0 M steps from
+# lb6-shank (whose own run on to 20.0 M is the adaptive arm) and trained to the same 20.0 M.
+LB="--preset lower_biped --ppo.gamma 0.99 --task.imitate.retarget-root-height contact_smooth --task.imitate.retarget-body-clearance-m 0.01 --total-env-steps 20000000"
 declare -A ARGS=(
+  [lbabl-uniform]="learner.main $LB --sampler.k 0"
+  [lbabl-nonorm]="learner.main $LB --task.imitate.no-reward-normalization"
+
   [manta-course]="learner.main --preset manta"
   [manta-nocourse]="learner.main --preset manta --task.imitate.no-observe-course"
   [executor-torque]="learner.main --preset executor"
 )
 ORDER=(executor-torque manta-course)  # what to resume first
 FRESH=(manta-course)
+declare -A FORK=([lbabl-uniform]="$HERE/lbabl-fork" [lbabl-nonorm]="$HERE/lbabl-fork")
 DRY=0
 if [ "${1:-}" = "--dry-run" ]; then DRY=1; shift; fi
 names=("$@")
@@ -32,6 +40,7 @@ for name in "${names[@]}"; do  # every name checked before anything starts
   [ -n "${ARGS[$name]+x}" ] || { echo "resume.sh: unknown run '$name'; choose one of ${!ARGS[*]}" >&2; exit 2; }
   if compgen -G "runs/$name/ckpt/*/state.pt" >/dev/null; then FROM[$name]=auto
   elif [ -f "$HERE/$name/state.pt" ]; then FROM[$name]="$HERE/$name"
+  elif [ -n "${FORK[$name]+x}" ] && [ -f "${FORK[$name]}/state.pt" ]; then FROM[$name]="${FORK[$name]}"
   elif [[ " ${FRESH[*]} " == *" $name "* ]]; then FROM[$name]=never
   else echo "resume.sh: run '$name' has no checkpoint in runs/$name/ckpt nor $HERE/$name/state.pt" >&2; exit 2
   fi
