@@ -21,7 +21,6 @@ LB="--preset lower_biped --ppo.gamma 0.99 --task.imitate.retarget-root-height co
 declare -A ARGS=(
   [lbabl-uniform]="learner.main $LB --sampler.k 0"
   [lbabl-nonorm]="learner.main $LB --task.imitate.no-reward-normalization"
-
   [manta-course]="learner.main --preset manta"
   [manta-nocourse]="learner.main --preset manta --task.imitate.no-observe-course"
   [executor-torque]="learner.main --preset executor"
