@@ -116,14 +116,17 @@ class SamplerHandle:
         return self._call("get_state", self.client.get_state, None)
 
     def plot(self, path: Path) -> None:
-        """Write the Vm map PNG (Won & Lee 2019, Figure 6) from the service's current state."""
-        state = self.state()
-        if state is None:
-            return
-        try:
-            from sampler.plot import plot_state
+        """Write the Vm map PNG (Won & Lee 2019, Figure 6) from the service's current state; a fixed
+        body has no map, and its state is not fetched."""
+        from sampler.plot import has_map, plot_state
 
-            plot_state(state, self.space, path, params=self.config.plot_params or None)
+        params = self.config.plot_params or None
+        try:
+            if not has_map(self.space, params):
+                return
+            state = self.state()
+            if state is not None:
+                plot_state(state, self.space, path, params=params)
         except Exception as exc:  # noqa: BLE001 - a plot must never stop training
             log.warning("could not plot the marginal value map: %s", exc)
 

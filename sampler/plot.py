@@ -28,6 +28,13 @@ def _axes(space: ParamSpace, params: Sequence[str] | None) -> tuple[int, int]:
     return space.names.index(names[0]), space.names.index(names[1])
 
 
+def has_map(space: ParamSpace, params: Sequence[str] | None = None) -> bool:
+    """Whether the map over `params` (default the first two; a 1-D space its one) has width along
+    every axis: a fixed body, such as the executor's humanoid or a `-fixedshape` run, has none."""
+    axes = (0,) if space.dim == 1 else _axes(space, params)
+    return all(space.high[k] > space.low[k] for k in axes)
+
+
 def plot_marginal_value(vm: MarginalValue, space: ParamSpace, buffer: np.ndarray | None, path: str | Path,
                         params: Sequence[str] | None = None, resolution: int = 64, title: str = "") -> Path | None:
     """Write a PNG of Vm over `params` (two names; default the first two), the other parameters
@@ -35,13 +42,11 @@ def plot_marginal_value(vm: MarginalValue, space: ParamSpace, buffer: np.ndarray
     `[n, d]` points overlaid. A 1-D space gets Vm as a curve over the buffer's histogram.
     Returns the path, or None (nothing written) when an axis has no width: a fixed body, such as
     the executor's humanoid or a `-fixedshape` run, has no map to draw."""
+    if not has_map(space, params):
+        return None
     if space.dim == 1:
-        if space.high[0] <= space.low[0]:
-            return None
         return _plot_1d(vm, space, buffer, Path(path), resolution, title)
     i, j = _axes(space, params)
-    if space.high[i] <= space.low[i] or space.high[j] <= space.low[j]:
-        return None
     fixed = buffer.mean(axis=0) if buffer is not None and len(buffer) else space.default_array
     gi = np.linspace(space.low[i], space.high[i], resolution)
     gj = np.linspace(space.low[j], space.high[j], resolution)
@@ -93,6 +98,8 @@ def plot_state(state: dict[str, Any], space: ParamSpace, path: str | Path,
                params: Sequence[str] | None = None, resolution: int = 64) -> Path | None:
     """The same PNG from a sampler state (`SamplerClient.get_state()` or `ShapeSampler.state_dict()`);
     None when an axis has no width."""
+    if not has_map(space, params):
+        return None
     meta, arrays = state["meta"], state["arrays"]
     vm = MarginalValue(space.low_array, space.high_array, tuple(meta["vm"]["hidden"]))
     vm.load_state(meta["vm"], {k[3:]: np.asarray(v) for k, v in arrays.items() if k.startswith("vm/")})

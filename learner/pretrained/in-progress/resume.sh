@@ -41,7 +41,7 @@ for name in "${names[@]}"; do  # every name checked before anything starts
   elif [ -f "$HERE/$name/state.pt" ]; then FROM[$name]="$HERE/$name"
   elif [ -n "${FORK[$name]+x}" ] && [ -f "${FORK[$name]}/state.pt" ]; then FROM[$name]="${FORK[$name]}"
   elif [[ " ${FRESH[*]} " == *" $name "* ]]; then FROM[$name]=never
-  else echo "resume.sh: run '$name' has no checkpoint in runs/$name/ckpt nor $HERE/$name/state.pt" >&2; exit 2
+  else echo "resume.sh: run '$name' has no checkpoint in runs/$name/ckpt nor $HERE/$name/state.pt${FORK[$name]+ nor its fork ${FORK[$name]}/state.pt}" >&2; exit 2
   fi
 done
 if [ $DRY = 1 ]; then
