@@ -21,10 +21,17 @@ from common.params import ParamSpace  # noqa: E402
 from sampler.marginal_value import MarginalValue  # noqa: E402
 
 
+def check_plot_params(space: ParamSpace, params: Sequence[str]) -> None:
+    """ValueError naming `params` (`--sampler.plot-params`) unless they are two different names of
+    `space`; checked when a run starts, so a typo does not wait for the first map to show."""
+    names = tuple(params)
+    if len(names) != 2 or len(set(names)) != 2 or any(n not in space.names for n in names):
+        raise ValueError(f"--sampler.plot-params {list(names)}: choose two different names from {list(space.names)}")
+
+
 def _axes(space: ParamSpace, params: Sequence[str] | None) -> tuple[int, int]:
     names = tuple(params) if params else space.names[:2]
-    if len(names) != 2 or len(set(names)) != 2 or any(n not in space.names for n in names):
-        raise ValueError(f"plot params {list(names)}: choose two different names from {list(space.names)}")
+    check_plot_params(space, names)
     return space.names.index(names[0]), space.names.index(names[1])
 
 

@@ -15,19 +15,16 @@
 set -euo pipefail
 cd "$(dirname "$0")/../../.."
 HERE=learner/pretrained/in-progress
-# lbabl-*: Won & Lee's ablations on the lower biped (issue 23 item 2), forked at 12.0 M steps from
-# lb6-shank (whose own run on to 20.0 M is the adaptive arm) and trained to the same 20.0 M.
-LB="--preset lower_biped --ppo.gamma 0.99 --task.imitate.retarget-root-height contact_smooth --task.imitate.retarget-body-clearance-m 0.01 --total-env-steps 20000000"
 declare -A ARGS=(
-  [lbabl-uniform]="learner.main $LB --sampler.k 0"
-  [lbabl-nonorm]="learner.main $LB --task.imitate.no-reward-normalization"
   [manta-course]="learner.main --preset manta"
   [manta-nocourse]="learner.main --preset manta --task.imitate.no-observe-course"
   [executor-torque]="learner.main --preset executor"
 )
 ORDER=(executor-torque manta-course)  # what to resume first
 FRESH=(manta-course)
-declare -A FORK=([lbabl-uniform]="$HERE/lbabl-fork" [lbabl-nonorm]="$HERE/lbabl-fork")
+# FORK: a run that starts from a shared checkpoint kept here (as the lower biped's ablation arms
+# lbabl-uniform and lbabl-nonorm did from lbabl-fork, 2026-12-05), when it has none of its own.
+declare -A FORK=()
 DRY=0
 if [ "${1:-}" = "--dry-run" ]; then DRY=1; shift; fi
 names=("$@")
