@@ -14,6 +14,13 @@ rules are in the table; `--fall-rule paper` also ends the episodes by the paper'
 `results.json` there with the same protocol is reused); the table goes to `<out>/ablation.md`
 and `<out>/ablation.json` and is printed.
 
+Single checkpoints of one run swing by several points, so `--last N` takes each run directory's
+newest N checkpoints as one arm: every checkpoint gets its row, each arm a row of its means, and
+the effects are judged on the means, with each arm's range of fall-down rates beside them.
+
+    morphmimic ablation --checkpoints runs/lb6-shank runs/lbabl-uniform runs/lbabl-nonorm --last 4 \
+        --workers 2 --out learner/pretrained/lower_biped-20M/ablation
+
 On motion executor checkpoints (task "executor") the UniCon ablation table is made instead
 (`learner/evaluation/executor_ablation.py`: options --clips, --starts, --workers, --out).
 """
@@ -81,6 +88,38 @@ def evaluate_one(ckpt: str, out: Path, args: argparse.Namespace, folder: str = "
     return {"loaded": loaded, **json.loads(res_file.read_text())}
 
 
+def arms_of(paths: list[str], last: int) -> list[list[str]]:
+    """Each path's checkpoints as one arm: a run directory's newest `last` (all it has when it has
+    fewer), a checkpoint folder or file itself alone; SystemExit naming a path that holds none."""
+    from learner import checkpoint
+
+    arms = []
+    for path in paths:
+        found = checkpoint.list_checkpoints(Path(path) / "ckpt")
+        arms.append([str(c) for c in found[-last:]] if found else [str(eval_core.resolve(path).parent)])
+    return arms
+
+
+MEAN_KEYS = ("task_achievement", "fall_down_pct", "fall_down_pct_paper_rule", "fall_down_pct_extreme10",
+             "mean_seconds", "return_map_uniformity", "mean_return")
+"""The summary figures an arm of several checkpoints reports as its mean."""
+
+
+def mean_row(rows: list[dict]) -> dict:
+    """One arm's checkpoints (rows of one run) as one row: the mean of each `MEAN_KEYS` figure
+    that every row has, the mean of their `spread`, and each checkpoint's fall-down % (by the
+    paper's rule where measured) under `checkpoint_falls`."""
+    numbers = {k: [r["summary"].get(k) for r in rows] for k in MEAN_KEYS}
+    summary = {k: float(np.mean(v)) for k, v in numbers.items()
+               if all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)}
+    spreads = np.array([spread(r) for r in rows], dtype=np.float64)
+    first, last = rows[0]["meta"], rows[-1]["meta"]
+    name = f"{first['name']}, mean of {len(rows)} (iterations {first['iteration']}-{last['iteration']})"
+    return {"loaded": rows[0]["loaded"], "summary": summary, "spread": tuple(spreads.mean(axis=0)),
+            "meta": {**last, "name": name},
+            "checkpoint_falls": [r["summary"].get("fall_down_pct_paper_rule", r["summary"]["fall_down_pct"]) for r in rows]}
+
+
 def _folders(checkpoints: list[str]) -> list[str]:
     """Output folder per checkpoint: its run name, or `<run name>-<iteration>` when several
     checkpoints of one run are compared (so one does not overwrite another's results)."""
@@ -94,6 +133,8 @@ def spread(row: dict) -> tuple[float, float]:
     map's min/mean does: a cell holds about 8 of 300 shapes): the 10th percentile of the
     per-shape returns over their mean (1 = even), and the coefficient of variation of the map's
     cells (0 = even). NaN where the results lack them."""
+    if "spread" in row:  # an arm's mean row carries its checkpoints' mean
+        return row["spread"]
     returns = np.array([x["return"] for x in row.get("shapes", [])], dtype=np.float64)
     cells = np.array(row["summary"].get("return_map", []), dtype=np.float64).reshape(-1)
     cells = cells[cells >= 0]  # -1 marks an empty cell
@@ -109,13 +150,17 @@ def table(rows: list[dict]) -> str:
     lines = [head, "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         s, m = r["summary"], r["meta"]
-        paper = s.get("fall_down_pct_paper_rule")
         p10, cv = spread(r)
-        lines.append(f"| `{m['name']}` | {describe(r['loaded'].cfg)} | {m['env_steps']:,d} | {s['task_achievement']:.1f} "
-                     f"| {s['fall_down_pct']:.1f} | {'-' if paper is None else format(paper, '.1f')} "
-                     f"| {s['fall_down_pct_extreme10']:.1f} | {s['mean_seconds']:.1f} "
-                     f"| {s['return_map_uniformity']:.2f} | {p10:.2f} | {cv:.2f} "
-                     f"| {s['mean_return']:.1f} |")
+
+        def fig(key: str, digits: int) -> str:
+            return "-" if s.get(key) is None else format(s[key], f".{digits}f")
+
+        name = f"**`{m['name']}`**" if "checkpoint_falls" in r else f"`{m['name']}`"
+        lines.append(f"| {name} | {describe(r['loaded'].cfg)} | {m['env_steps']:,d} | {fig('task_achievement', 1)} "
+                     f"| {fig('fall_down_pct', 1)} | {fig('fall_down_pct_paper_rule', 1)} "
+                     f"| {fig('fall_down_pct_extreme10', 1)} | {fig('mean_seconds', 1)} "
+                     f"| {fig('return_map_uniformity', 2)} | {p10:.2f} | {cv:.2f} "
+                     f"| {fig('mean_return', 1)} |")
     return "\n".join(lines)
 
 
@@ -150,6 +195,18 @@ def _verdict(better: float, worse: float, margin: float) -> str:
     return "does not reproduce" if better > worse + margin else f"inconclusive (within {margin:g})"
 
 
+def _ranges(a: dict, b: dict) -> str:
+    """"; checkpoints a0-a1% against b0-b1%[, apart]" when both rows are means of several
+    checkpoints ("apart": every checkpoint of one arm on the same side of every one of the other's),
+    else ""."""
+    if "checkpoint_falls" not in a or "checkpoint_falls" not in b:
+        return ""
+    fa, fb = a["checkpoint_falls"], b["checkpoint_falls"]
+    apart = max(fa) < min(fb) or max(fb) < min(fa)
+    return (f"; its {len(fa)} and {len(fb)} checkpoints: {min(fa):.1f}-{max(fa):.1f}% against {min(fb):.1f}-{max(fb):.1f}%"
+            f"{', apart' if apart else ', overlapping'}")
+
+
 def _achievement(with_norm: dict, without: dict) -> str:
     """", task achievement N% higher (lower) with it": normalization's effect on task achievement
     relative to the arm without, which compares on any scale (the paper's own figures: 369.5
@@ -180,7 +237,8 @@ def effects(rows: list[dict]) -> list[str]:
             by_task = ("" if base.get("meta", {}).get("fall_rule") == "paper"  # the paper's rule ended the episodes
                        else f"; by the task's rule {own[0]:.1f}% and {own[1]:.1f}%")
             lines.append(f"- {task}, reward normalization lowers falls: **{_verdict(fall[0], fall[1], FALL_MARGIN_PCT)}** "
-                         f"(by the paper's rule {fall[0]:.1f}% with it, {fall[1]:.1f}% without{by_task}{_achievement(base, nonorm)}; "
+                         f"(by the paper's rule {fall[0]:.1f}% with it, {fall[1]:.1f}% without{by_task}{_ranges(base, nonorm)}"
+                         f"{_achievement(base, nonorm)}; "
                          "the paper: 20.7% against 54.1% on the lower biped, 9.3% against 11.1% on the quadruped, task "
                          "achievement 69% and 26% higher with it).")
         else:
@@ -222,13 +280,22 @@ def main(argv: list[str]) -> int:
     p.add_argument("--map-params", nargs=2, default=None, metavar=("X", "Y"))
     p.add_argument("--fall-rule", choices=("task", "paper"), default="task",
                    help="what ends an episode (as in morphmimic evaluate); both fall-down rates are in the table either way")
+    p.add_argument("--last", type=cli_args.positive_int, default=1,
+                   help="take each run directory's newest N checkpoints as one arm, judged on their means (default 1)")
     args = p.parse_args(argv)
     executors = [c for c in args.checkpoints if eval_core.load(c).cfg.task.name == "executor"]
     if executors:
         p.error(f"--checkpoints {' '.join(executors)}: executor checkpoints; compare them with executor checkpoints only")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    rows = [evaluate_one(c, out, args, folder) for c, folder in zip(args.checkpoints, _folders(args.checkpoints))]
+    arms = arms_of(args.checkpoints, args.last)
+    flat = [c for arm in arms for c in arm]
+    evaluated = iter([evaluate_one(c, out, args, folder) for c, folder in zip(flat, _folders(flat))])
+    by_arm = [[next(evaluated) for _ in arm] for arm in arms]
+    judged = [arm[0] if len(arm) == 1 else mean_row(arm) for arm in by_arm]  # an arm of several: its mean
+    means = [row for arm, row in zip(by_arm, judged) if len(arm) > 1]
+    rows = [r if len(arm) == 1 else {**r, "meta": {**r["meta"], "name": f"{r['meta']['name']} @ {r['meta']['iteration']}"}}
+            for arm in by_arm for r in arm] + means
     tasks = {r["loaded"].cfg.task.name for r in rows}
     text = "\n".join([
         f"# Ablations ({', '.join(sorted(tasks))})", "",
@@ -237,14 +304,17 @@ def main(argv: list[str]) -> int:
         "is binned over two shape parameters (min/mean: 1 = uniform); return p10/mean is the 10th percentile of the "
         "per-shape returns over their mean, cell CV the coefficient of variation of the map's cells (0 = uniform).", "",
         table(rows), "",
-        "The paper's two effects, here:", "", *effects(rows), "",
+        "The paper's two effects, here" + (" (judged on each arm's mean over its checkpoints, the bold rows):" if means else ":"),
+        "", *effects(judged), "",
         "Paper (Won & Lee 2019): fall-down 20.7% for the lower-body biped with reward normalization, 54.1% without; "
         "quadruped 9.3% with, 11.1% without; adaptive sampling makes the map markedly more uniform and extreme shapes "
         "fall far less. Task achievement is this project's own scale, not comparable with the paper's; every "
         "difference from the paper's protocol is listed in docs/shape-controllers.md.", "",
     ])
     eval_core.write_ablation(out, text, [{"name": r["meta"]["name"], "training": describe(r["loaded"].cfg), "meta": r["meta"],
-                                          "summary": r["summary"]} for r in rows])
+                                          "summary": r["summary"],
+                                          **({"checkpoint_falls": r["checkpoint_falls"]} if "checkpoint_falls" in r else {})}
+                                         for r in rows])
     return 0
 
 

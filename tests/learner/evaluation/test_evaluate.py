@@ -327,6 +327,57 @@ def test_ablation_keeps_two_checkpoints_of_one_run_apart(tmp_path: Path) -> None
     assert (out / "run-0" / "results.json").exists() and (out / "run-5" / "results.json").exists()
 
 
+def test_ablation_last_n_takes_each_runs_newest_checkpoints_as_one_arm(tmp_path: Path) -> None:
+    from learner.evaluation import ablation, eval_core
+    from learner.learner import Learner
+
+    for name, changes in (("norm", {}), ("nonorm", {"reward_normalization": False})):
+        first = _tiny_checkpoint(tmp_path, name, **changes)
+        state = Learner(eval_core.load(first).cfg).state_dict()
+        for it in (5, 9):
+            state["iteration"] = it
+            checkpoint.save(tmp_path / name / "ckpt", it, state, keep=3)
+    out = tmp_path / "abl"
+    argv = ["--checkpoints", str(tmp_path / "norm"), str(tmp_path / "nonorm"), "--last", "2", "--shapes", "2",
+            "--episode-s", "0.3", "--out", str(out)]
+    assert ablation.main(argv) == 0
+    assert sorted(p.name for p in out.iterdir() if p.is_dir()) == ["nonorm-5", "nonorm-9", "norm-5", "norm-9"]
+    text = (out / "ablation.md").read_text()
+    assert "| **`norm, mean of 2 (iterations 5-9)`** | adaptive k=1, reward norm |" in text, text
+    assert "| **`nonorm, mean of 2 (iterations 5-9)`** |" in text and "| `norm @ 5` |" in text and "| `norm` |" not in text
+    assert "judged on each arm's mean" in text and "its 2 and 2 checkpoints: " in text, text
+    saved = json.loads((out / "ablation.json").read_text())
+    assert len(saved) == 6 and len(saved[-1]["checkpoint_falls"]) == 2
+    with pytest.raises(SystemExit, match="no state.pt there"):
+        ablation.main(["--checkpoints", str(tmp_path / "nowhere"), "--last", "2", "--out", str(out)])
+    with pytest.raises(SystemExit):
+        ablation.main(argv[:-2] + ["--last", "0"])
+
+
+def test_an_arms_mean_row_averages_its_checkpoints_and_says_whether_arms_are_apart() -> None:
+    from types import SimpleNamespace
+
+    from learner.evaluation import ablation
+
+    def row(preset: str, it: int, falls: float) -> dict:
+        return {"loaded": SimpleNamespace(cfg=PRESETS[preset][1]), "shapes": [{"return": 1.0}, {"return": 3.0}],
+                "meta": {"name": preset, "iteration": it, "env_steps": it * 10, "fall_rule": "task"},
+                "summary": {"fall_down_pct": falls, "fall_down_pct_paper_rule": falls, "fall_down_pct_extreme10": 2 * falls,
+                            "return_map_uniformity": 0.5, "return_map": [[1.0, 3.0]], "task_achievement": 100.0}}
+
+    norm = ablation.mean_row([row("quadruped", 1, 10.0), row("quadruped", 2, 14.0)])
+    assert norm["summary"]["fall_down_pct"] == 12.0 and norm["summary"]["fall_down_pct_extreme10"] == 24.0
+    assert "mean_return" not in norm["summary"]  # a figure the rows lack is not made up
+    assert norm["meta"]["name"] == "quadruped, mean of 2 (iterations 1-2)" and norm["checkpoint_falls"] == [10.0, 14.0]
+    assert ablation.spread(norm) == pytest.approx((0.6, 0.5))  # p10 of [1, 3] is 1.2, over the mean 2
+    apart = ablation.mean_row([row("quadruped-nonorm", 1, 20.0), row("quadruped-nonorm", 2, 30.0)])
+    line = ablation.effects([norm, apart])[0]
+    assert "12.0% with it, 25.0% without" in line and "10.0-14.0% against 20.0-30.0%, apart" in line, line
+    close = ablation.mean_row([row("quadruped-nonorm", 1, 13.0), row("quadruped-nonorm", 2, 30.0)])
+    assert ", overlapping" in ablation.effects([norm, close])[0]
+    assert "-" in ablation.table([norm]).splitlines()[-1]  # the missing mean return shows as "-"
+
+
 def test_morph_demo_changes_the_body_during_the_episode(tmp_path: Path) -> None:
     from learner.evaluation import eval_core, morph_demo
 
