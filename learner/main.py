@@ -84,11 +84,11 @@ def parse(argv: list[str]) -> RunConfig:
         validate_tree(cfg)
         # The task's own checks (its parameter space, its clips) before any run folder exists.
         from common.tasks.registry import task_check, task_clips, task_space
-        from sampler.plot import check_plot_params
+        from sampler.plot import map_axes
 
         space = task_space(cfg.task)
         if cfg.sampler.plot_params:
-            check_plot_params(space, cfg.sampler.plot_params)
+            map_axes(space, cfg.sampler.plot_params)
         task_clips(cfg.task)
         task_check(cfg.task)
         return cfg

@@ -21,24 +21,20 @@ from common.params import ParamSpace  # noqa: E402
 from sampler.marginal_value import MarginalValue  # noqa: E402
 
 
-def check_plot_params(space: ParamSpace, params: Sequence[str]) -> None:
-    """ValueError naming `params` (`--sampler.plot-params`) unless they are two different names of
-    `space`; checked when a run starts, so a typo does not wait for the first map to show."""
-    names = tuple(params)
-    if len(names) != 2 or len(set(names)) != 2 or any(n not in space.names for n in names):
-        raise ValueError(f"--sampler.plot-params {list(names)}: choose two different names from {list(space.names)}")
-
-
-def _axes(space: ParamSpace, params: Sequence[str] | None) -> tuple[int, int]:
+def map_axes(space: ParamSpace, params: Sequence[str] | None, flag: str = "--sampler.plot-params") -> tuple[int, int]:
+    """Indices of a map's two parameters (default: the first two of `space`); ValueError naming
+    `flag` and its value unless they are two different names of `space`. The one check of both
+    the Vm map's `--sampler.plot-params` (made when a run starts) and evaluation's `--map-params`."""
     names = tuple(params) if params else space.names[:2]
-    check_plot_params(space, names)
+    if len(names) != 2 or len(set(names)) != 2 or any(n not in space.names for n in names):
+        raise ValueError(f"{flag} {list(names)}: choose two different names from {list(space.names)}")
     return space.names.index(names[0]), space.names.index(names[1])
 
 
 def has_map(space: ParamSpace, params: Sequence[str] | None = None) -> bool:
     """Whether the map over `params` (default the first two; a 1-D space its one) has width along
     every axis: a fixed body, such as the executor's humanoid or a `-fixedshape` run, has none."""
-    axes = (0,) if space.dim == 1 else _axes(space, params)
+    axes = (0,) if space.dim == 1 else map_axes(space, params)
     return all(space.high[k] > space.low[k] for k in axes)
 
 
@@ -53,7 +49,7 @@ def plot_marginal_value(vm: MarginalValue, space: ParamSpace, buffer: np.ndarray
         return None
     if space.dim == 1:
         return _plot_1d(vm, space, buffer, Path(path), resolution, title)
-    i, j = _axes(space, params)
+    i, j = map_axes(space, params)
     fixed = buffer.mean(axis=0) if buffer is not None and len(buffer) else space.default_array
     gi = np.linspace(space.low[i], space.high[i], resolution)
     gj = np.linspace(space.low[j], space.high[j], resolution)

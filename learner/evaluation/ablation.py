@@ -109,15 +109,20 @@ def mean_row(rows: list[dict]) -> dict:
     """One arm's checkpoints (rows of one run) as one row: the mean of each `MEAN_KEYS` figure
     that every row has, the mean of their `spread`, and each checkpoint's fall-down % (by the
     paper's rule where measured) under `checkpoint_falls`."""
-    numbers = {k: [r["summary"].get(k) for r in rows] for k in MEAN_KEYS}
-    summary = {k: float(np.mean(v)) for k, v in numbers.items()
-               if all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)}
+    numbers = {k: [_number(r["summary"].get(k)) for r in rows] for k in MEAN_KEYS}
+    summary = {k: float(np.mean(v)) for k, v in numbers.items() if np.all(np.isfinite(v))}
     spreads = np.array([spread(r) for r in rows], dtype=np.float64)
     first, last = rows[0]["meta"], rows[-1]["meta"]
     name = f"{first['name']}, mean of {len(rows)} (iterations {first['iteration']}-{last['iteration']})"
     return {"loaded": rows[0]["loaded"], "summary": summary, "spread": tuple(spreads.mean(axis=0)),
             "meta": {**last, "name": name},
-            "checkpoint_falls": [r["summary"].get("fall_down_pct_paper_rule", r["summary"]["fall_down_pct"]) for r in rows]}
+            "checkpoint_falls": [_number(r["summary"].get("fall_down_pct_paper_rule", r["summary"].get("fall_down_pct")))
+                                 for r in rows]}
+
+
+def _number(x: object) -> float:
+    """`x` as a float, NaN unless it is a real number (a results.json written elsewhere may hold anything)."""
+    return float(x) if isinstance(x, (int, float)) and not isinstance(x, bool) else float("nan")
 
 
 def _folders(checkpoints: list[str]) -> list[str]:

@@ -23,11 +23,14 @@ from common.params import ParamSpace  # noqa: E402
 
 
 def axes_of(space: ParamSpace, names: Sequence[str] | None) -> tuple[int, int]:
-    """Indices of the two map parameters (default: the first two of the space)."""
-    names = tuple(names) if names else space.names[:2]
-    if len(names) != 2 or any(n not in space.names for n in names):
-        raise SystemExit(f"--map-params {list(names)}: choose two of {list(space.names)}")
-    return space.names.index(names[0]), space.names.index(names[1])
+    """Indices of the two map parameters (default: the first two of the space); SystemExit naming
+    `--map-params` unless they are two different names of it (`sampler.plot.map_axes`)."""
+    from sampler.plot import map_axes
+
+    try:
+        return map_axes(space, names, flag="--map-params")
+    except ValueError as exc:
+        raise SystemExit(str(exc)) from None
 
 
 def binned_grid(space: ParamSpace, params: np.ndarray, values: np.ndarray, ij: tuple[int, int], bins: int) -> np.ndarray:

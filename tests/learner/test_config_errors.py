@@ -54,7 +54,7 @@ def test_every_numeric_field_of_the_run_config_has_a_limit() -> None:
     (["--preset", "manta", "--task.imitate.swimmer-speed", "fast"], "--task.imitate.swimmer-speed = 'fast': give length, stroke_fit"),
     (["--preset", "lower_biped-tiny", "--sampler.plot-params", "global_z", "Femur_x"],
      "--sampler.plot-params ['global_z', 'Femur_x']: choose two different names from ['global_x'"),
-    (["--preset", "lower_biped-tiny", "--sampler.plot-params", "global_z"], "--sampler.plot-params ['global_z']: choose two"),
+    (["--preset", "lower_biped-tiny", "--sampler.plot-params", "global_z"], "--sampler.plot-params ['global_z']: choose two different names from ['global_x'"),
 ])
 def test_a_bad_value_is_one_line_naming_it_and_exit_2(args, says, capsys) -> None:
     with pytest.raises(SystemExit) as exc:

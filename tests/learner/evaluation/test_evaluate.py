@@ -408,7 +408,7 @@ def test_bad_map_params_fail_before_any_episode_and_a_render_failure_keeps_the_r
     ran = []
     monkeypatch.setattr(eval_core, "evaluate", lambda *a, **k: ran.append(1))
     argv = ["--checkpoint", str(tmp_path / "tiny"), "--shapes", "2", "--episode-s", "0.3", "--out", str(tmp_path / "e")]
-    with pytest.raises(SystemExit, match=r"--map-params \['global_z', 'nope'\]: choose two of"):
+    with pytest.raises(SystemExit, match=r"--map-params \['global_z', 'nope'\]: choose two different names from \['global_x'"):
         evaluate.main(argv + ["--map-params", "global_z", "nope"])
     assert not ran
     monkeypatch.undo()
