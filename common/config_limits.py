@@ -81,12 +81,27 @@ def _tuple_fields(cls: type) -> frozenset[str]:
     return frozenset(f.name for f in dataclasses.fields(cls) if typing.get_origin(hints[f.name]) is tuple)
 
 
+@functools.cache
+def _int_fields(cls: type) -> frozenset[str]:
+    """Fields of a config class declared int (alone, optional or in a tuple): a saved config or
+    a `--set` may hold 2.5 there, which no flag parser would have let through."""
+    hints = typing.get_type_hints(cls)
+
+    def ints(h) -> bool:
+        args = [a for a in typing.get_args(h) if a is not type(None) and a is not Ellipsis]
+        return h is int or (bool(args) and all(ints(a) for a in args))
+
+    return frozenset(f.name for f in dataclasses.fields(cls) if ints(hints[f.name]))
+
+
 def check_limits(obj) -> None:
     """ValueError naming the first field of `obj` outside its `LIMITS` entry (or holding a list
     where one value belongs, or one value where a list does)."""
     prefix = getattr(obj, "FLAG_PREFIX", "")
-    tuples = _tuple_fields(type(obj))
+    tuples, ints = _tuple_fields(type(obj)), _int_fields(type(obj))
     for name, limit in obj.LIMITS.items():
+        if name in ints:
+            limit = dataclasses.replace(limit, integer=True)
         value = getattr(obj, name)
         if value is None:
             continue
@@ -95,7 +110,8 @@ def check_limits(obj) -> None:
             raise ValueError(f"{flag(prefix, name)} = {value!r} is not allowed: give "
                              f"{'a list of values, each ' if many else 'one value, '}{limit.describe()}")
         for x in value if many else (value,):
-            if isinstance(x, bool) or not isinstance(x, (int, float)) or not limit.allows(float(x)):
+            if (isinstance(x, bool) or not isinstance(x, int if name in ints else (int, float))
+                    or not limit.allows(float(x))):
                 each = " each" if many else ""
                 raise ValueError(f"{flag(prefix, name)} = {value!r} is not allowed: give{each} {limit.describe()}")
 

@@ -184,6 +184,12 @@ def _executor_preset(variant: str = "") -> RunConfig:
     against 1.2-2.5% of train starts with all five terms above 0.1 and 17.5-22.5% against
     6.2-10.0% of held-out starts with the pose terms (six checkpoints each, iterations
     3700-4000; docs/executor.md). `--task.executor.no-pd-velocity-target` restores the old PD.
+    The "pd" variant's ankles, shoulders and elbows have a rotor inertia of 0.1 kg m^2, not the
+    builder's 0.01 (`ankle_armature`, `arm_armature`; since 2026-12-05): at the force limit the
+    light segments' velocities flipped from substep to substep. Two arms forked from the shipped
+    executor at 49.6 M steps and trained side by side to 56.5 M tracked 18.8-20.6% against
+    8.8-10.0% of train starts with all five terms above 0.1 (four checkpoints each; docs/executor.md).
+    `--task.executor.ankle-armature 0.01 --task.executor.arm-armature 0.01` restores the old body.
     Variants for the ablations: "pd" (PD targets), "noterm" (the sum rule instead of per-term
     termination), "uniform" (uniform clip draws instead of the balancer), "norsis" (start on
     the tracked frame, no noise)."""
@@ -197,6 +203,8 @@ def _executor_preset(variant: str = "") -> RunConfig:
     ex = ExecutorConfig(
         actuation="pd" if variant == "pd" else "torque",
         pd_velocity_target=variant == "pd",
+        ankle_armature=0.1 if variant == "pd" else 0.01,
+        arm_armature=0.1 if variant == "pd" else 0.01,
         termination="sum" if variant == "noterm" else "per_term",
         reactive_init=variant != "norsis",
         clip_draws="uniform" if variant == "uniform" else "balancer",

@@ -151,6 +151,18 @@ def passive_damping(model: mujoco.MjModel, fraction: float) -> None:
         model.dof_damping[dof : dof + width] = fraction * GAINS[model.joint(j).name.split("_")[-1]][1]
 
 
+def set_armature(spec: mujoco.MjSpec, part: str, armature: float) -> None:
+    """Set the rotor inertia `armature` (kg m^2) of the joints whose last name word is `part`
+    (`ankle`: both ankles, every DOF of each) in a spec before it compiles, so that what MuJoCo
+    derives from it at compile time agrees; ValueError when no joint is one (see
+    `ExecutorConfig.ankle_armature` for why the ankles need more than the builder's)."""
+    joints = [j for j in spec.joints if j.name.split("_")[-1] == part]
+    if not joints:
+        raise ValueError(f"no {part!r} joint in this model to set the armature of")
+    for joint in joints:
+        joint.armature = armature
+
+
 def pd_lead_s(model: mujoco.MjModel) -> np.ndarray:
     """kd / kp `[nu]` (s) of the PD's position actuators (gain kp, bias -kp q - kd qdot)."""
     return -model.actuator_biasprm[:, 2] / model.actuator_gainprm[:, 0]
@@ -219,6 +231,9 @@ class ExecutorEnv:
                 ball.add_freejoint(name=f"projectile{i}")
                 ball.add_geom(name=f"projectile{i}", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[PROJECTILE["radius_m"], 0, 0],
                               mass=PROJECTILE["mass_kg"], rgba=[0.9, 0.3, 0.2, 1.0], contype=0, conaffinity=0)
+        set_armature(spec, "ankle", self.ex.ankle_armature)
+        for part in ("shoulder", "elbow"):
+            set_armature(spec, part, self.ex.arm_armature)
         self.model = spec.compile()
         self.nq, self.nv, self.nu = self.ref_model.nq, self.ref_model.nv, self.ref_model.nu
         self.base_mass = self.model.body_mass.copy()

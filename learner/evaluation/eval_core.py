@@ -320,7 +320,7 @@ def summarize(results: list[dict], space, n_shape: int) -> dict[str, Any]:
     }
 
 
-EXECUTOR_ONLY_OPTIONS = ("--clips", "--starts", "--zero-action")
+EXECUTOR_ONLY_OPTIONS = ("--clips", "--starts", "--zero-action", "--set")
 """Options only the motion executor's evaluation commands take."""
 
 

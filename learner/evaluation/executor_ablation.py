@@ -26,8 +26,8 @@ from learner.evaluation import cli_args, eval_core, executor_eval as xe, executo
 
 
 def settings(cfg) -> str:
-    """The four ablated settings of an arm, in the table's words, and the training wait's end
-    when it is not the default."""
+    """The four ablated settings of an arm, in the table's words, and the training wait's end and
+    the rotor inertia of the light segments when they are not the defaults."""
     ex = cfg.task.executor
     words = [
         ex.actuation,
@@ -37,6 +37,9 @@ def settings(cfg) -> str:
     ]
     if ex.catch_up_ends == "on_track":
         words.append("wait ends on track")
+    default = type(ex)()
+    if (ex.ankle_armature, ex.arm_armature) != (default.ankle_armature, default.arm_armature):
+        words.append(f"rotor inertia ankles {ex.ankle_armature:g}, arms {ex.arm_armature:g} kg m^2")
     return " · ".join(words)
 
 

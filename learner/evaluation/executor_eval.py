@@ -217,6 +217,50 @@ def eval_task(cfg: TaskConfig, perturbation: Perturbation = Perturbation()) -> T
     return dataclasses.replace(cfg, episode_s=EVAL_EPISODE_S, executor=ex)
 
 
+SETTABLE = ("ankle_armature", "arm_armature", "pd_velocity_target", "pd_action_scale", "effort_scale", "passive_damping",
+            "joint_velocity", "target_velocity_window", "alpha", "terminate_on", "reward_weights", "reward_scales")
+"""`ExecutorConfig` fields an evaluation may change from what the checkpoint trained with
+(`--set NAME=VALUE`): the body's model, the PD, and how the reward and the rule measure. The
+clip set, the split and the perturbations have options of their own."""
+
+
+def _json_or_word(json, text: str) -> Any:
+    try:
+        return json.loads(text)
+    except ValueError:
+        return text
+
+
+def with_settings(loaded: eval_core.Loaded, pairs: list[str]) -> eval_core.Loaded:
+    """The checkpoint with `NAME=VALUE` pairs (`SETTABLE` fields of its `ExecutorConfig`; VALUE as
+    JSON, or a bare word for a choice, or comma-separated numbers for a tuple) in its task config;
+    ValueError naming the pair and what is allowed. The policy is unchanged: this measures a
+    trained policy on a changed body or rule, as `--zero-action` measures the PD without one."""
+    import json
+
+    from learner.config import _from_dict
+
+    if not pairs:
+        return loaded
+    current = dataclasses.asdict(loaded.cfg.task.executor)
+    for pair in pairs:
+        name, sep, text = pair.partition("=")
+        name = name.strip().replace("-", "_")
+        if not sep or name not in SETTABLE:
+            raise ValueError(f"--set {pair!r}: give NAME=VALUE with NAME one of {', '.join(SETTABLE)}")
+        word = lambda t: _json_or_word(json, t.strip())  # noqa: E731
+        if isinstance(current[name], tuple) and not text.lstrip().startswith("["):
+            current[name] = [word(x) for x in text.split(",")]
+        else:
+            current[name] = word(text)
+    try:
+        ex = _from_dict(type(loaded.cfg.task.executor), current)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"--set {' '.join(pairs)}: {exc}") from None
+    task = dataclasses.replace(loaded.cfg.task, executor=ex)
+    return dataclasses.replace(loaded, cfg=dataclasses.replace(loaded.cfg, task=task))
+
+
 def make_eval_env(loaded: eval_core.Loaded, clips: Iterable[EvalClip], perturbation: Perturbation = Perturbation()):
     """The evaluation environment with the imported clips registered and the mass scaled."""
     from common.tasks.registry import make_env
@@ -316,9 +360,14 @@ def run_episode(env, policy, clip_id: str, start_s: float, own_rule: str, seed: 
 _WORKER: dict[str, Any] = {}
 
 
-def _init_worker(state_file: str, clips: list[EvalClip], perturbation: Perturbation, zero_action: bool = False) -> None:
+def _init_worker(state_file: str, clips: list[EvalClip], perturbation: Perturbation, zero_action: bool = False,
+                 cfg_json: str = "") -> None:
+    from learner.config import RunConfig
+
     torch.set_num_threads(1)
     loaded = eval_core.load(state_file)
+    if cfg_json:  # the parent's config, with any `--set` in it
+        loaded = dataclasses.replace(loaded, cfg=RunConfig.from_json(cfg_json))
     env = make_eval_env(loaded, clips, perturbation)
     policy = eval_core.ZeroPolicy(env.act_dim) if zero_action else eval_core.make_policy(loaded, env.obs_dim, env.act_dim)
     _WORKER.update(env=env, policy=policy,
@@ -351,7 +400,7 @@ def evaluate(loaded: eval_core.Loaded, clips: list[EvalClip], starts: int, worke
     if durations is None:
         durations = clip_durations(make_eval_env(loaded, clips), clips)
     jobs = episode_jobs(clips, durations, starts)
-    init = (str(loaded.path), list(clips), perturbation, zero_action)
+    init = (str(loaded.path), list(clips), perturbation, zero_action, loaded.cfg.to_json())
     results = eval_core.run_jobs(_init_worker, init, _work, jobs, workers, progress)
     by_id = {c.clip_id: c for c in clips}
     for r in results:

@@ -57,6 +57,9 @@ def parser(prog: str = "morphmimic evaluate") -> argparse.ArgumentParser:
                    help="act with zero actions instead of the policy (a PD executor: the humanoid's PD on the reference "
                         "itself; torque: no torque), the baseline that shows what the policy adds; no best/worst strips; default "
                         "--out <checkpoint dir>/eval_clips_zero_action")
+    p.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE", dest="settings",
+                   help="evaluate with these fields of the checkpoint's executor config changed (the policy is the "
+                        f"same; e.g. ankle_armature=0.1): {', '.join(xe.SETTABLE)}")
     return p
 
 
@@ -107,6 +110,8 @@ def markdown(loaded: eval_core.Loaded, summary: dict, meta: dict, files: list[st
         f"# Executor evaluation of `{loaded.name}`", "",
         f"Checkpoint `{loaded.path}` (iteration {meta['iteration']}, {meta['env_steps']:,d} env steps); trained with "
         f"{describe(loaded.cfg)}.", "",
+        *([f"**Evaluated with settings changed from training** (`--set {' '.join(meta['settings'])}`): the figures "
+           "measure the trained policy on that body or rule, not the checkpoint as trained.", ""] if meta.get("settings") else []),
         f"Protocol: {summary['overall']['clips']} clips x {meta['starts']} start frames each (evenly over the clip's "
         f"first {100 * xe.START_SPAN:.0f}%), starting on the tracked frame (no reactive initialization), "
         f"{ZERO_NOTE if meta.get('actions') == 'zero' else 'mean action'}, "
@@ -206,10 +211,11 @@ def best_and_worst(summary: dict) -> tuple[str, str]:
 
 def evaluate_checkpoint(loaded: eval_core.Loaded, clips: list[xe.EvalClip], starts: int, workers: int, out: Path,
                         render: bool = False, gif: bool = False, log: str = "evaluate", zero_action: bool = False,
-                        ) -> dict[str, Any]:
+                        settings: list[str] | None = None) -> dict[str, Any]:
     """Run the evaluation and write results.json, summary.md, clips.png (and the strips);
     returns {"meta", "summary", "episodes", "files"}. `zero_action`: the zero-action baseline
-    in the checkpoint's task instead of its policy (no strips: they film the policy)."""
+    in the checkpoint's task instead of its policy (no strips: they film the policy). `settings`:
+    the `--set` pairs already applied to `loaded` (`xe.with_settings`), recorded in the files."""
     out.mkdir(parents=True, exist_ok=True)
     t0, last = time.monotonic(), [0.0]
 
@@ -226,7 +232,7 @@ def evaluate_checkpoint(loaded: eval_core.Loaded, clips: list[xe.EvalClip], star
             "alpha": loaded.cfg.task.executor.alpha, "starts": starts, "start_span": xe.START_SPAN,
             "phc_threshold_m": xe.PHC_THRESHOLD_M, "clips": [c.clip_id for c in clips],
             "sources": {c.clip_id: c.source for c in clips if c.source}, "wall_s": time.monotonic() - t0,
-            "actions": "zero" if zero_action else "mean"}
+            "actions": "zero" if zero_action else "mean", "settings": list(settings or [])}
     result = {"meta": meta, "summary": summary, "episodes": records}
     (out / "results.json").write_text(json.dumps(result, indent=1) + "\n")
     files = [str(out / "results.json"), str(plot_clips(summary, out / "clips.png",
@@ -257,10 +263,14 @@ def main(argv: list[str]) -> int:
     if loaded.cfg.task.name != "executor":
         p.error(f"--checkpoint {args.checkpoint}: task {loaded.cfg.task.name!r} is not the executor; "
                 f"{', '.join(eval_core.EXECUTOR_ONLY_OPTIONS)} are executor options")
+    try:
+        loaded = xe.with_settings(loaded, args.settings)
+    except ValueError as exc:
+        p.error(str(exc))
     clips = select_clips(p, args.clips, loaded)
     out = Path(args.out) if args.out else loaded.path.parent / ("eval_clips_zero_action" if args.zero_action else "eval_clips")
     result = evaluate_checkpoint(loaded, clips, args.starts, args.workers, out, render=not args.no_render, gif=args.gif,
-                                 zero_action=args.zero_action)
+                                 zero_action=args.zero_action, settings=args.settings)
     s = result["summary"]
     name = f"{loaded.name} (zero action)" if args.zero_action else loaded.name
     for group, stats in s["splits"].items():

@@ -331,17 +331,26 @@ def main(argv: list[str]) -> int:
     p.add_argument("--episode-s", type=cli_args.positive_float, default=10.0, help="shape controllers: episode length, s")
     p.add_argument("--seed", type=cli_args.seed, default=2019, help="shape controllers: seed of the shape draws")
     p.add_argument("--workers", type=cli_args.positive_int, default=1, help="processes running episodes")
+    p.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE", dest="settings",
+                   help=f"executor: these config fields changed, the policy the same (as `morphmimic evaluate --set`): "
+                        f"{', '.join(xe.SETTABLE)}")
     p.add_argument("--out", default="", help="output directory (default: <checkpoint dir>/robustness)")
     args = p.parse_args(argv)
     loaded = eval_core.load(args.checkpoint)
     executor = loaded.cfg.task.name == "executor"
     defaults = vars(p.parse_args(["--checkpoint", args.checkpoint]))
-    wrong = (("shapes", "episode_s", "seed") if executor else ("clips", "starts", "projectile_speed", "projectile_distance"))
-    given = [f"--{k.replace('_', '-')}" for k in wrong if getattr(args, k) != defaults[k]]
+    wrong = (("shapes", "episode_s", "seed") if executor else ("clips", "starts", "projectile_speed", "projectile_distance",
+                                                                "settings"))
+    given = [f"--{'set' if k == 'settings' else k.replace('_', '-')}" for k in wrong if getattr(args, k) != defaults[k]]
     if given:
         p.error(f"{', '.join(given)}: not options for task {loaded.cfg.task.name!r} "
                 f"({'executor' if executor else 'shape controller'} checkpoints take "
-                f"{'--clips, --starts, --projectile-speed, --projectile-distance' if executor else '--shapes, --episode-s, --seed'})")
+                f"{'--clips, --starts, --projectile-speed, --projectile-distance, --set' if executor else '--shapes, --episode-s, --seed'})")
+    if executor:
+        try:
+            loaded = xe.with_settings(loaded, args.settings)
+        except ValueError as exc:
+            p.error(str(exc))
     rows = rows_for(args.rows, args.projectile_speed, args.projectile_distance)
     out = Path(args.out) if args.out else loaded.path.parent / "robustness"
     out.mkdir(parents=True, exist_ok=True)
@@ -353,7 +362,7 @@ def main(argv: list[str]) -> int:
         if not clips:
             p.error(f"--checkpoint {args.checkpoint}: it trained on no humanoid clip; name --clips")
         base, results = executor_rows(loaded, clips, args.starts, args.workers, rows)
-        protocol = {"clips": [c.clip_id for c in clips], "starts": args.starts, "projectile": {
+        protocol = {"clips": [c.clip_id for c in clips], "starts": args.starts, "settings": args.settings, "projectile": {
             **robustness_report.projectile_spec(), "speed_mps": args.projectile_speed, "distance_m": args.projectile_distance}}
     else:
         base, results = shape_rows(loaded, args.shapes, args.episode_s, args.seed, args.workers, rows)

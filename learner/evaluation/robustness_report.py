@@ -33,6 +33,9 @@ def markdown(loaded: eval_core.Loaded, base: dict, results: list[dict], protocol
         who = (f"{len(protocol['clips'])} clips x {protocol['starts']} start frames each (evenly over each clip's first 80%, "
                f"on the tracked frame, mean action, truncated at the clip's end): "
                + ", ".join(f"`{c}`" for c in protocol["clips"]))
+        if protocol.get("settings"):
+            who += (f". **Evaluated with settings changed from training** (`--set {' '.join(protocol['settings'])}`): the "
+                    "trained policy on that body or rule")
         own = f"`{ex.termination}`, alpha {ex.alpha:g}"
         success = "tracked to the clip's end with no reward term below alpha"
         planned = "the clip segment's length at that playback speed"

@@ -2,6 +2,7 @@
 
     morphmimic velocity-probe --checkpoint learner/pretrained/executor               # ankles left out
     morphmimic velocity-probe --checkpoint learner/pretrained/executor --leave-out ankle knee
+    morphmimic velocity-probe --checkpoint learner/pretrained/executor --set ankle_armature=0.1
 
 UniCon's constrained rule (METHOD.md B, eq. 6) ends an episode when any of the five reward terms
 falls below alpha; the joint-velocity term r_wj = exp(-k sum ||qdot - qdot~||^2) (eq. 5) sums
@@ -13,7 +14,9 @@ action), per split:
   pose terms and the other DOF's velocity term must still stay at or above alpha);
 - at the first step of each episode where r_wj falls below alpha: the median summed squared
   error ((rad/s)^2; the term breaks above -ln(alpha)/k), the share of it per joint, and how often
-  a body of a left-out joint touches something then (for the ankles: a foot on the floor).
+  a body of a left-out joint touches something then (for the ankles: a foot on the floor);
+- over every step, the left-out DOF's mean squared velocity error ((rad/s)^2 per DOF) while
+  their own body touches something and while it is free (a foot on the floor or in the air).
 Prints a markdown table; `--out` also writes `velocity_probe.md` and `.json`.
 """
 
@@ -62,21 +65,28 @@ class EpisodeProbe:
         self.left_out = left_out
         dof_body = env.ref_model.jnt_bodyid[env.ref_model.dof_jntid[6:]]
         self.left_out_bodies = {int(b) for b in dof_body[left_out]}
+        self.dof_body = dof_body
         self.first_break: np.ndarray | None = None
         self.touching = False
         self.holds_without = True
+        self.sq_sum = {True: 0.0, False: 0.0}  # the left-out DOF's squared error summed, by body touching
+        self.dof_steps = {True: 0, False: 0}
 
     def __call__(self, env, k: int) -> None:
         err = (env.data.qvel[6 : env.nv] - env.scheduler.frame(0).qvel[6:]) ** 2
         terms = env.last_terms
+        d, m = env.data, env.model
+        touched = {int(m.geom_bodyid[g]) for c in d.contact[: d.ncon] for g in (c.geom1, c.geom2)}
+        for i in np.flatnonzero(self.left_out):
+            on = int(self.dof_body[i]) in touched
+            self.sq_sum[on] += float(err[i])
+            self.dof_steps[on] += 1
         kept = float(err[~self.left_out].sum())
         if any(terms[n] < self.alpha for n in self.pose_terms) or math.exp(-self.k * kept) < self.alpha:
             self.holds_without = False
         if self.first_break is None and terms["joint_velocity"] < self.alpha:
             self.first_break = err
-            d, m = env.data, env.model
-            self.touching = any(int(m.geom_bodyid[g]) in self.left_out_bodies
-                                for c in d.contact[: d.ncon] for g in (c.geom1, c.geom2))
+            self.touching = bool(self.left_out_bodies & touched)
 
 
 def probe_split(env, policy, clips, starts: int, left_out: np.ndarray, joints: list[str]) -> dict[str, Any]:
@@ -87,6 +97,7 @@ def probe_split(env, policy, clips, starts: int, left_out: np.ndarray, joints: l
     n = success = pose = without = touching = 0
     breaks: list[float] = []
     share: dict[str, float] = defaultdict(float)
+    sq_sum, dof_steps = {True: 0.0, False: 0.0}, {True: 0, False: 0}
     for clip in clips:
         for start in xe.start_times(durations[clip.clip_id], starts):
             hook = EpisodeProbe(env, left_out)
@@ -95,6 +106,9 @@ def probe_split(env, policy, clips, starts: int, left_out: np.ndarray, joints: l
             success += rec["success"]
             pose += rec["pose_success"]
             without += hook.holds_without and not rec["diverged"]
+            for on in (True, False):
+                sq_sum[on] += hook.sq_sum[on]
+                dof_steps[on] += hook.dof_steps[on]
             if hook.first_break is not None:
                 total = float(hook.first_break.sum())
                 breaks.append(total)
@@ -107,6 +121,9 @@ def probe_split(env, policy, clips, starts: int, left_out: np.ndarray, joints: l
         "breaks": len(breaks), "median_break_error": float(np.median(breaks)) if breaks else None,
         "touching_at_break_pct": 100.0 * touching / len(breaks) if breaks else None,
         "joint_share_pct": {j: 100.0 * v / len(breaks) for j, v in sorted(share.items(), key=lambda kv: -kv[1])},
+        "left_out_sq_error_touching": sq_sum[True] / dof_steps[True] if dof_steps[True] else None,
+        "left_out_sq_error_free": sq_sum[False] / dof_steps[False] if dof_steps[False] else None,
+        "left_out_touching_pct": 100.0 * dof_steps[True] / max(1, dof_steps[True] + dof_steps[False]),
     }
 
 
@@ -116,14 +133,17 @@ def report(name: str, left_out: list[str], threshold: float, rows: dict[str, dic
              f"Left out of the velocity term for the third column: joints matching {', '.join(left_out)}. "
              f"The term falls below alpha when the summed squared error exceeds {threshold:.1f} (rad/s)^2.", "",
              "| split | episodes | success % | success %, left out | pose success % | episodes where r_wj breaks "
-             "| median error there | left-out body touching % | largest shares of the error (joint %) |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "| median error there | left-out body touching % | largest shares of the error (joint %) "
+             "| left-out DOF's mean squared error, touching / free (% of DOF-steps touching) |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for split, r in rows.items():
         top = ", ".join(f"{j} {v:.0f}" for j, v in list(r["joint_share_pct"].items())[:5])
         med = "-" if r["median_break_error"] is None else f"{r['median_break_error']:.1f}"
         touch = "-" if r["touching_at_break_pct"] is None else f"{r['touching_at_break_pct']:.0f}"
+        on, off = (r.get(f"left_out_sq_error_{w}") for w in ("touching", "free"))
+        split_err = "-" if on is None or off is None else f"{on:.1f} / {off:.1f} ({r['left_out_touching_pct']:.0f}%)"
         lines.append(f"| {split} | {r['episodes']} | {r['success_pct']:.1f} | {r['success_left_out_pct']:.1f} | "
-                     f"{r['pose_success_pct']:.1f} | {r['breaks']} | {med} | {touch} | {top} |")
+                     f"{r['pose_success_pct']:.1f} | {r['breaks']} | {med} | {touch} | {top} | {split_err} |")
     return "\n".join(lines) + "\n"
 
 
@@ -139,10 +159,16 @@ def main(argv: list[str]) -> int:
     p.add_argument("--leave-out", nargs="+", default=["ankle"], metavar="JOINT",
                    help="joints (by part of their name) left out of the velocity term for the third column")
     p.add_argument("--out", default="", help="output directory (default: none, print only)")
+    p.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE", dest="settings",
+                   help=f"probe with these executor config fields changed (as `morphmimic evaluate --set`): {', '.join(xe.SETTABLE)}")
     args = p.parse_args(argv)
     loaded = eval_core.load(args.checkpoint)
     if loaded.cfg.task.name != "executor":
         p.error(f"--checkpoint {args.checkpoint} is a {loaded.cfg.task.name!r} checkpoint; the probe needs an executor")
+    try:
+        loaded = xe.with_settings(loaded, args.settings)
+    except ValueError as exc:
+        p.error(str(exc))
     clips = xe.default_clips(loaded.cfg.task, args.splits)
     env = xe.make_eval_env(loaded, clips)
     joints = joint_of_dof(env.ref_model)
@@ -154,12 +180,13 @@ def main(argv: list[str]) -> int:
     rows = {split: probe_split(env, policy, [c for c in clips if c.split == split], args.starts, mask, joints)
             for split in args.splits}
     threshold = -math.log(loaded.cfg.task.executor.alpha) / loaded.cfg.task.executor.reward_scales[4]
-    text = report(loaded.cfg.name, args.leave_out, threshold, rows)
+    text = report(loaded.cfg.name + (f" with --set {' '.join(args.settings)}" if args.settings else ""),
+                  args.leave_out, threshold, rows)
     if args.out:
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
         (out / "velocity_probe.md").write_text(text)
-        (out / "velocity_probe.json").write_text(json.dumps({"leave_out": args.leave_out, "splits": rows}, indent=1) + "\n")
+        (out / "velocity_probe.json").write_text(json.dumps({"leave_out": args.leave_out, "settings": args.settings, "splits": rows}, indent=1) + "\n")
     print(text)
     return 0
 

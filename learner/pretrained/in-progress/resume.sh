@@ -22,8 +22,8 @@ declare -A ARGS=(
 )
 ORDER=(executor-torque manta-course)  # what to resume first
 FRESH=(manta-course)
-# FORK: a run that starts from a shared checkpoint kept here (as the lower biped's ablation arms
-# lbabl-uniform and lbabl-nonorm did from lbabl-fork, 2026-12-05), when it has none of its own.
+# FORK: a run that starts from a shared checkpoint, when it has none of its own (the rotor-inertia
+# arms xank-* forked the shipped executor, 2026-12-05, the lower biped's ablation arms lbabl-fork).
 declare -A FORK=()
 DRY=0
 if [ "${1:-}" = "--dry-run" ]; then DRY=1; shift; fi

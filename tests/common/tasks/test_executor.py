@@ -284,6 +284,32 @@ def test_joint_velocity_term_instant_or_over_the_control_step():
     assert terms["instant"] != pytest.approx(terms["step_mean"], rel=1e-3)
 
 
+def test_ankle_and_arm_armature_set_their_joints_and_still_the_chatter():
+    """`ankle_armature` is the rotor inertia of the two ankles' six DOF and of nothing else
+    (`arm_armature`: the shoulders' and elbows' eight); with
+    0.1 kg m^2 the PD alone on the dance (its feet leave the floor) keeps the ankles' joint
+    velocities near the clip's, where with the builder's 0.01 the clamped force makes them flip
+    from substep to substep (`ExecutorConfig.ankle_armature`)."""
+    err = {}
+    for armature in (0.01, 0.1):
+        env = make_env(cfg_with(actuation="pd", pd_velocity_target=True, reactive_init=False, termination="none",
+                                ankle_armature=armature, clips=("humanoid3d_dance_a",)), seed=0)
+        m = env.model
+        ankle = np.array(["ankle" in m.joint(int(m.dof_jntid[d])).name for d in range(m.nv)])
+        assert ankle.sum() == 6 and np.all(m.dof_armature[ankle] == armature)
+        assert np.all(m.dof_armature[6 : env.nv][~ankle[6 : env.nv]] == 0.01)
+        env.reset(0, env.space.default_array, start_s=0.3)
+        sq = []
+        for _ in range(20):
+            env.step(np.zeros(env.act_dim))
+            sq.append(np.sum((env.data.qvel[ankle] - env.scheduler.frame(0).qvel[np.flatnonzero(ankle)]) ** 2))
+        err[armature] = float(np.mean(sq))
+    assert err[0.1] < 0.1 * err[0.01]  # measured: 0.3 against 140 (rad/s)^2
+    m = make_env(cfg_with(actuation="pd", arm_armature=0.2), seed=0).model
+    arm = np.array([m.joint(int(m.dof_jntid[d])).name.split("_")[-1] in ("shoulder", "elbow") for d in range(m.nv)])
+    assert arm.sum() == 8 and np.all(m.dof_armature[arm] == 0.2) and np.all(m.dof_armature[6:][~arm[6:]] == 0.01)
+
+
 # ---- clips, split, scheduler ----
 
 def test_train_and_test_splits_are_disjoint_and_cover_the_library():
@@ -342,7 +368,7 @@ def test_dataset_scheduler_reschedules_at_the_clip_end(env):
 
 def test_config_rejects_bad_values():
     for bad in (dict(tau=0), dict(alpha=1.5), dict(effort_scale=0.0), dict(speed=0.0), dict(rsis_frames=(5, 2)),
-                dict(passive_damping=-1.0), dict(catch_up_steps=-1), dict(terminate_on=()),
+                dict(passive_damping=-1.0), dict(catch_up_steps=-1), dict(ankle_armature=-0.1), dict(terminate_on=()),
                 dict(terminate_on=("joint_speed",)), dict(terminate_on=("root_position", "root_position"))):
         with pytest.raises(ValueError, match="--task.executor"):
             ExecutorConfig(**bad)

@@ -82,14 +82,58 @@ def test_zero_action_baseline_runs_the_same_episodes_without_the_policy(run_dir:
     assert not np.isclose(zero["episodes"][1]["return"], policy["episodes"][1]["return"])
 
 
-@pytest.mark.parametrize("option", [["--zero-action"], ["--starts", "3"], ["--clips", "humanoid3d_walk"]])
+def test_set_evaluates_the_policy_on_a_changed_body_in_every_worker(run_dir: Path, tmp_path: Path, capsys) -> None:
+    """`--set ankle_armature=0.1`: the workers' episodes are the ones an environment built with the
+    changed config gives by hand, not the checkpoint's own; the files say what was changed."""
+    import dataclasses
+
+    from learner.evaluation import eval_core, evaluate, executor_eval as xe
+
+    argv = ["--checkpoint", str(run_dir), "--clips", "humanoid3d_dance_a", "--starts", "2", "--no-render", "--workers", "2"]
+    assert evaluate.main([*argv, "--out", str(tmp_path / "as_trained")]) == 0
+    assert evaluate.main([*argv, "--set", "ankle_armature=0.1", "--out", str(tmp_path / "set")]) == 0
+    as_trained, changed = (json.loads((tmp_path / d / "results.json").read_text()) for d in ("as_trained", "set"))
+    assert changed["meta"]["settings"] == ["ankle_armature=0.1"] and as_trained["meta"]["settings"] == []
+    assert "`--set ankle_armature=0.1`" in (tmp_path / "set" / "summary.md").read_text()
+    loaded = eval_core.load(run_dir)
+    assert loaded.cfg.task.executor.ankle_armature == 0.01
+    moved = xe.with_settings(loaded, ["ankle_armature=0.1"])
+    assert moved.cfg.task.executor == dataclasses.replace(loaded.cfg.task.executor, ankle_armature=0.1)
+    env = xe.make_eval_env(moved, xe.resolve_clips(["humanoid3d_dance_a"], moved.cfg.task))
+    by_hand = xe.run_episode(env, eval_core.make_policy(moved, env.obs_dim, env.act_dim), "humanoid3d_dance_a",
+                             changed["episodes"][1]["start_s"], moved.cfg.task.executor.termination, seed=1)
+    assert by_hand["return"] == pytest.approx(changed["episodes"][1]["return"])
+    assert by_hand["return"] != pytest.approx(as_trained["episodes"][1]["return"])
+
+
+@pytest.mark.parametrize("pair, says", [
+    ("clips=[]", "--set 'clips=[]': give NAME=VALUE with NAME one of ankle_armature,"),
+    ("ankle_armature", "--set 'ankle_armature': give NAME=VALUE"),
+    ("ankle_armature=-1", "--task.executor.ankle-armature = -1 is not allowed: give a finite number in [0, 10]"),
+    ("target_velocity_window=2.5", "--task.executor.target-velocity-window = 2.5 is not allowed: give an integer in [1, 30]"),
+    ("joint_velocity=bogus", "--task.executor.joint-velocity = 'bogus' is not one of instant, step_mean"),
+    ("terminate_on=joint_speed", "--task.executor.terminate-on = ('joint_speed',): give one or more distinct terms"),
+])
+def test_bad_set_is_a_usage_error_naming_the_value(run_dir: Path, tmp_path: Path, pair, says, capsys) -> None:
+    from learner.evaluation import evaluate
+
+    with pytest.raises(SystemExit) as exc:
+        evaluate.main(["--checkpoint", str(run_dir), "--starts", "1", "--set", pair, "--out", str(tmp_path / "e")])
+    assert exc.value.code == 2
+    assert says in capsys.readouterr().err
+    assert not (tmp_path / "e").exists()
+
+
+@pytest.mark.parametrize("option", [["--zero-action"], ["--starts", "3"], ["--clips", "humanoid3d_walk"],
+                                    ["--set", "ankle_armature=0.1"]])
 def test_executor_options_on_a_shape_checkpoint_are_a_usage_error_naming_them(option, capsys) -> None:
     from learner.evaluation import evaluate
 
     with pytest.raises(SystemExit) as exc:
         evaluate.main(["--checkpoint", str(Path(__file__).resolve().parents[3] / "learner/pretrained/fish"), *option])
     assert exc.value.code == 2
-    assert "task 'fish' is not the executor; --clips, --starts, --zero-action are executor options" in capsys.readouterr().err
+    assert ("task 'fish' is not the executor; --clips, --starts, --zero-action, --set are executor options"
+            in capsys.readouterr().err)
 
 
 @pytest.mark.parametrize("bad, says", [
@@ -154,15 +198,21 @@ def test_ablation_refuses_to_mix_executor_and_shape_checkpoints(tmp_path: Path, 
     assert exc.value.code == 2 and "executor checkpoints" in capsys.readouterr().err
 
 
-def test_ablation_settings_name_the_wait_only_when_it_ends_on_track() -> None:
+def test_ablation_settings_name_the_wait_and_the_rotor_inertia_only_when_changed() -> None:
     import dataclasses
 
     from learner.config import RunConfig
     from learner.evaluation.executor_ablation import settings
     from learner.presets import PRESETS
 
-    cfg: RunConfig = PRESETS["executor-pd"][1]
+    preset: RunConfig = PRESETS["executor-pd"][1]
+    assert settings(preset) == "pd · per-term · balancer · reactive init · rotor inertia ankles 0.1, arms 0.1 kg m^2"
+    builders = dataclasses.replace(preset.task.executor, ankle_armature=0.01, arm_armature=0.01)
+    cfg = dataclasses.replace(preset, task=dataclasses.replace(preset.task, executor=builders))
     assert settings(cfg) == "pd · per-term · balancer · reactive init"
     ex = dataclasses.replace(cfg.task.executor, catch_up_ends="on_track")
     on_track = dataclasses.replace(cfg, task=dataclasses.replace(cfg.task, executor=ex))
     assert settings(on_track) == "pd · per-term · balancer · reactive init · wait ends on track"
+    ex = dataclasses.replace(cfg.task.executor, ankle_armature=0.1, arm_armature=0.1)
+    heavy = dataclasses.replace(cfg, task=dataclasses.replace(cfg.task, executor=ex))
+    assert settings(heavy) == "pd · per-term · balancer · reactive init · rotor inertia ankles 0.1, arms 0.1 kg m^2"

@@ -94,6 +94,25 @@ def test_options_of_the_other_kind_of_checkpoint_are_refused(tmp_path: Path, cap
     with pytest.raises(SystemExit) as exc:
         robustness.main(["--checkpoint", str(run), "--shapes", "5"])
     assert exc.value.code == 2 and "--shapes: not options for task 'executor'" in capsys.readouterr().err
+    fish = Path(__file__).resolve().parents[3] / "learner/pretrained/fish"
+    with pytest.raises(SystemExit) as exc:
+        robustness.main(["--checkpoint", str(fish), "--set", "ankle_armature=0.1"])
+    assert exc.value.code == 2 and "--set: not options for task 'fish'" in capsys.readouterr().err
+
+
+def test_set_runs_the_rows_on_the_changed_body_and_says_so(tmp_path: Path, capsys) -> None:
+    run = tiny_executor(tmp_path)
+    argv = ["--checkpoint", str(run), "--clips", "humanoid3d_run", "--starts", "1", "--rows", "mass"]
+    assert robustness.main([*argv, "--out", str(tmp_path / "a")]) == 0
+    assert robustness.main([*argv, "--set", "ankle_armature=0.1", "arm_armature=0.1", "--out", str(tmp_path / "b")]) == 0
+    a, b = (json.loads((tmp_path / d / "robustness.json").read_text()) for d in "ab")
+    assert b["meta"]["protocol"]["settings"] == ["ankle_armature=0.1", "arm_armature=0.1"]
+    assert a["meta"]["protocol"]["settings"] == []
+    assert b["unperturbed"]["performance"] != pytest.approx(a["unperturbed"]["performance"])
+    assert "`--set ankle_armature=0.1 arm_armature=0.1`" in (tmp_path / "b" / "robustness.md").read_text()
+    with pytest.raises(SystemExit) as exc:
+        robustness.main([*argv, "--set", "ankle_armature=-1", "--out", str(tmp_path / "c")])
+    assert exc.value.code == 2 and "--task.executor.ankle-armature = -1 is not allowed" in capsys.readouterr().err
 
 
 def test_projectile_rows_throw_the_ball_at_the_character(tmp_path: Path) -> None:
