@@ -94,6 +94,13 @@ def _int_fields(cls: type) -> frozenset[str]:
     return frozenset(f.name for f in dataclasses.fields(cls) if ints(hints[f.name]))
 
 
+@functools.cache
+def _optional_fields(cls: type) -> frozenset[str]:
+    """Fields of a config class that may hold None (`X | None`)."""
+    hints = typing.get_type_hints(cls)
+    return frozenset(f.name for f in dataclasses.fields(cls) if type(None) in typing.get_args(hints[f.name]))
+
+
 def check_limits(obj) -> None:
     """ValueError naming the first field of `obj` outside its `LIMITS` entry (or holding a list
     where one value belongs, or one value where a list does)."""
@@ -103,7 +110,7 @@ def check_limits(obj) -> None:
         if name in ints:
             limit = dataclasses.replace(limit, integer=True)
         value = getattr(obj, name)
-        if value is None:
+        if value is None and name in _optional_fields(type(obj)):
             continue
         many = name in tuples
         if isinstance(value, (tuple, list)) != many:

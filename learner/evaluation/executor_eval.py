@@ -36,6 +36,7 @@ import os
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import dataclasses
+import json
 from collections import Counter, defaultdict
 from dataclasses import dataclass
 from pathlib import Path
@@ -224,7 +225,8 @@ SETTABLE = ("ankle_armature", "arm_armature", "pd_velocity_target", "pd_action_s
 clip set, the split and the perturbations have options of their own."""
 
 
-def _json_or_word(json, text: str) -> Any:
+def _json_or_word(text: str) -> Any:
+    """`text` as JSON, else the bare word itself (a choice such as `step_mean`)."""
     try:
         return json.loads(text)
     except ValueError:
@@ -236,8 +238,6 @@ def with_settings(loaded: eval_core.Loaded, pairs: list[str]) -> eval_core.Loade
     JSON, or a bare word for a choice, or comma-separated numbers for a tuple) in its task config;
     ValueError naming the pair and what is allowed. The policy is unchanged: this measures a
     trained policy on a changed body or rule, as `--zero-action` measures the PD without one."""
-    import json
-
     from learner.config import _from_dict
 
     if not pairs:
@@ -248,11 +248,10 @@ def with_settings(loaded: eval_core.Loaded, pairs: list[str]) -> eval_core.Loade
         name = name.strip().replace("-", "_")
         if not sep or name not in SETTABLE:
             raise ValueError(f"--set {pair!r}: give NAME=VALUE with NAME one of {', '.join(SETTABLE)}")
-        word = lambda t: _json_or_word(json, t.strip())  # noqa: E731
         if isinstance(current[name], tuple) and not text.lstrip().startswith("["):
-            current[name] = [word(x) for x in text.split(",")]
+            current[name] = [_json_or_word(x.strip()) for x in text.split(",")]
         else:
-            current[name] = word(text)
+            current[name] = _json_or_word(text.strip())
     try:
         ex = _from_dict(type(loaded.cfg.task.executor), current)
     except (TypeError, ValueError) as exc:

@@ -112,6 +112,9 @@ def test_set_evaluates_the_policy_on_a_changed_body_in_every_worker(run_dir: Pat
     ("ankle_armature=-1", "--task.executor.ankle-armature = -1 is not allowed: give a finite number in [0, 10]"),
     ("target_velocity_window=2.5", "--task.executor.target-velocity-window = 2.5 is not allowed: give an integer in [1, 30]"),
     ("joint_velocity=bogus", "--task.executor.joint-velocity = 'bogus' is not one of instant, step_mean"),
+    ("alpha=null", "--task.executor.alpha = None is not allowed: give a finite number in [0, 1)"),
+    ("ankle_armature=true", "--task.executor.ankle-armature = True is not allowed"),
+    ("ankle_armature=[1,2]", "--task.executor.ankle-armature = (1, 2) is not allowed: give one value"),
     ("terminate_on=joint_speed", "--task.executor.terminate-on = ('joint_speed',): give one or more distinct terms"),
 ])
 def test_bad_set_is_a_usage_error_naming_the_value(run_dir: Path, tmp_path: Path, pair, says, capsys) -> None:
