@@ -17,6 +17,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "ablation": ("learner.evaluation.ablation", "compare checkpoints on the same shapes (or clips): the ablation table"),
     "references": ("learner.evaluation.reference_survey", "how physical a walker's retargeted reference is over the evaluation's shapes, per root-height rule"),
     "velocity-probe": ("learner.evaluation.velocity_probe", "where an executor's joint-velocity term breaks: per joint, with a foot on the floor, with joints left out"),
+    "break-probe": ("learner.evaluation.break_probe", "where an executor's pose terms break: the first to fall, each body's share, the root's lean"),
     "robustness": ("learner.evaluation.robustness", "zero-shot robustness: speed, projectiles, mass (UniCon Table 2)"),
     "play": ("learner.live.play", "run a checkpoint live or render it to an MP4 (schedulers: dataset, stitch, keyboard, video)"),
     "studio": ("learner.live.studio", "a browser studio: a checkpoint live in 3-D with shape sliders, schedulers, projectiles, plots"),

@@ -324,6 +324,11 @@ class ExecutorEnv:
         mujoco.mj_comVel(self.model, self.data)
         return read_kinematics(self.model, self.data, self.bodies)
 
+    def tracking_kinematics(self) -> tuple[BodyKin, BodyKin]:
+        """(the character's, the tracked target frame's) `BodyKin` now: what the reward terms of
+        the last step compared (for analyses such as `morphmimic break-probe`)."""
+        return self._actual_kin(), self._target_kin(self.scheduler.frame(0))
+
     @property
     def qpos(self) -> np.ndarray:
         """The character's qpos `[nq]` (without the projectile's)."""

@@ -22,17 +22,14 @@ Prints a markdown table; `--out` also writes `velocity_probe.md` and `.json`.
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
 import sys
 from collections import defaultdict
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from learner.evaluation import cli_args
+from learner.evaluation import probe_cli
 
 
 def joint_of_dof(model) -> list[str]:
@@ -89,32 +86,26 @@ class EpisodeProbe:
             self.touching = bool(self.left_out_bodies & touched)
 
 
-def probe_split(env, policy, clips, starts: int, left_out: np.ndarray, joints: list[str]) -> dict[str, Any]:
+def probe_split(opened, split: str, starts: int, left_out: np.ndarray, joints: list[str]) -> dict[str, Any]:
     """The figures of the module docstring over one split's clips."""
-    from learner.evaluation import executor_eval as xe
-
-    durations = xe.clip_durations(env, clips)
     n = success = pose = without = touching = 0
     breaks: list[float] = []
     share: dict[str, float] = defaultdict(float)
     sq_sum, dof_steps = {True: 0.0, False: 0.0}, {True: 0, False: 0}
-    for clip in clips:
-        for start in xe.start_times(durations[clip.clip_id], starts):
-            hook = EpisodeProbe(env, left_out)
-            rec = xe.run_episode(env, policy, clip.clip_id, start, "per_term", 0, on_step=hook)  # the rule only sets rec["return"]
-            n += 1
-            success += rec["success"]
-            pose += rec["pose_success"]
-            without += hook.holds_without and not rec["diverged"]
-            for on in (True, False):
-                sq_sum[on] += hook.sq_sum[on]
-                dof_steps[on] += hook.dof_steps[on]
-            if hook.first_break is not None:
-                total = float(hook.first_break.sum())
-                breaks.append(total)
-                touching += hook.touching
-                for name, e in zip(joints, hook.first_break):
-                    share[name] += e / total
+    for hook, rec in probe_cli.episodes(opened, split, starts, lambda env: EpisodeProbe(env, left_out)):
+        n += 1
+        success += rec["success"]
+        pose += rec["pose_success"]
+        without += hook.holds_without and not rec["diverged"]
+        for on in (True, False):
+            sq_sum[on] += hook.sq_sum[on]
+            dof_steps[on] += hook.dof_steps[on]
+        if hook.first_break is not None:
+            total = float(hook.first_break.sum())
+            breaks.append(total)
+            touching += hook.touching
+            for name, e in zip(joints, hook.first_break):
+                share[name] += e / total
     pct = lambda x: 100.0 * x / max(n, 1)  # noqa: E731
     return {
         "episodes": n, "success_pct": pct(success), "pose_success_pct": pct(pose), "success_left_out_pct": pct(without),
@@ -148,45 +139,20 @@ def report(name: str, left_out: list[str], threshold: float, rows: dict[str, dic
 
 
 def main(argv: list[str]) -> int:
-    from learner.evaluation import eval_core
-    from learner.evaluation import executor_eval as xe
-
-    p = argparse.ArgumentParser(prog="morphmimic velocity-probe", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--checkpoint", required=True, help="checkpoint dir, state.pt or run dir of an executor run")
-    p.add_argument("--starts", type=cli_args.positive_int, default=10, help="start frames per clip (the evaluation's)")
-    p.add_argument("--splits", nargs="+", choices=("train", "test", "unused"), default=["train", "test"])
+    p = probe_cli.parser("morphmimic velocity-probe", __doc__)
     p.add_argument("--leave-out", nargs="+", default=["ankle"], metavar="JOINT",
                    help="joints (by part of their name) left out of the velocity term for the third column")
-    p.add_argument("--out", default="", help="output directory (default: none, print only)")
-    p.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE", dest="settings",
-                   help=f"probe with these executor config fields changed (as `morphmimic evaluate --set`): {', '.join(xe.SETTABLE)}")
     args = p.parse_args(argv)
-    loaded = eval_core.load(args.checkpoint)
-    if loaded.cfg.task.name != "executor":
-        p.error(f"--checkpoint {args.checkpoint} is a {loaded.cfg.task.name!r} checkpoint; the probe needs an executor")
-    try:
-        loaded = xe.with_settings(loaded, args.settings)
-    except ValueError as exc:
-        p.error(str(exc))
-    clips = xe.default_clips(loaded.cfg.task, args.splits)
-    env = xe.make_eval_env(loaded, clips)
-    joints = joint_of_dof(env.ref_model)
+    opened = probe_cli.open_checkpoint(p, args)
+    joints = joint_of_dof(opened.env.ref_model)
     try:
         mask = left_out_mask(joints, args.leave_out)
     except ValueError as exc:
         p.error(str(exc))
-    policy = eval_core.make_policy(loaded, env.obs_dim, env.nu)
-    rows = {split: probe_split(env, policy, [c for c in clips if c.split == split], args.starts, mask, joints)
-            for split in args.splits}
-    threshold = -math.log(loaded.cfg.task.executor.alpha) / loaded.cfg.task.executor.reward_scales[4]
-    text = report(loaded.cfg.name + (f" with --set {' '.join(args.settings)}" if args.settings else ""),
-                  args.leave_out, threshold, rows)
-    if args.out:
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "velocity_probe.md").write_text(text)
-        (out / "velocity_probe.json").write_text(json.dumps({"leave_out": args.leave_out, "settings": args.settings, "splits": rows}, indent=1) + "\n")
+    rows = {split: probe_split(opened, split, args.starts, mask, joints) for split in args.splits}
+    ex = opened.loaded.cfg.task.executor
+    text = report(opened.title, args.leave_out, -math.log(ex.alpha) / ex.reward_scales[4], rows)
+    probe_cli.write(args.out, "velocity_probe", text, {"leave_out": args.leave_out, "settings": args.settings, "splits": rows})
     print(text)
     return 0
 

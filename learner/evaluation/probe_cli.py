@@ -1,0 +1,83 @@
+"""What the executor probes (`morphmimic velocity-probe`, `morphmimic break-probe`) share: the
+options that pick a checkpoint, its clips and a changed body, the environment and policy they
+open, the loop over every split's episodes, and where the table goes."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+from learner.evaluation import cli_args
+
+
+def parser(prog: str, doc: str | None) -> argparse.ArgumentParser:
+    """An argument parser with the options every probe takes: --checkpoint, --starts, --splits,
+    --out and --set."""
+    from learner.evaluation import executor_eval as xe
+
+    p = argparse.ArgumentParser(prog=prog, description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--checkpoint", required=True, help="checkpoint dir, state.pt or run dir of an executor run")
+    p.add_argument("--starts", type=cli_args.positive_int, default=10, help="start frames per clip (the evaluation's)")
+    p.add_argument("--splits", nargs="+", choices=("train", "test", "unused"), default=["train", "test"])
+    p.add_argument("--out", default="", help="output directory (default: none, print only)")
+    p.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE", dest="settings",
+                   help=f"probe with these executor config fields changed (as `morphmimic evaluate --set`): {', '.join(xe.SETTABLE)}")
+    return p
+
+
+@dataclass
+class Opened:
+    """A probe's checkpoint (with `--set` applied), its clips, an evaluation env and the policy."""
+
+    loaded: Any
+    clips: list
+    env: Any
+    policy: Any
+    title: str  # the run's name, with the settings changed
+
+
+def open_checkpoint(p: argparse.ArgumentParser, args: argparse.Namespace) -> Opened:
+    """Load `args.checkpoint`; a usage error (exit 2) naming the value when it is no executor or a
+    `--set` pair is bad, before any episode runs."""
+    from learner.evaluation import eval_core
+    from learner.evaluation import executor_eval as xe
+
+    loaded = eval_core.load(args.checkpoint)
+    if loaded.cfg.task.name != "executor":
+        p.error(f"--checkpoint {args.checkpoint} is a {loaded.cfg.task.name!r} checkpoint; the probe needs an executor")
+    try:
+        loaded = xe.with_settings(loaded, args.settings)
+    except ValueError as exc:
+        p.error(str(exc))
+    clips = xe.default_clips(loaded.cfg.task, args.splits)
+    env = xe.make_eval_env(loaded, clips)
+    policy = eval_core.make_policy(loaded, env.obs_dim, env.nu)
+    title = loaded.cfg.name + (f" with --set {' '.join(args.settings)}" if args.settings else "")
+    return Opened(loaded, clips, env, policy, title)
+
+
+def episodes(opened: Opened, split: str, starts: int, make_hook: Callable[[Any], Any]):
+    """Yield (hook, record) for every episode of `split` (each clip from `starts` start frames, the
+    mean action, `executor_eval.run_episode`), `make_hook(env)` making each episode's `on_step`."""
+    from learner.evaluation import executor_eval as xe
+
+    clips = [c for c in opened.clips if c.split == split]
+    durations = xe.clip_durations(opened.env, clips)
+    for clip in clips:
+        for start in xe.start_times(durations[clip.clip_id], starts):
+            hook = make_hook(opened.env)
+            # the rule only sets rec["return"]; every verdict is read off the five terms
+            yield hook, xe.run_episode(opened.env, opened.policy, clip.clip_id, start, "per_term", 0, on_step=hook)
+
+
+def write(out: str, stem: str, text: str, payload: dict) -> None:
+    """`<out>/<stem>.md` and `.json` (nothing when `out` is empty)."""
+    if not out:
+        return
+    folder = Path(out)
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / f"{stem}.md").write_text(text)
+    (folder / f"{stem}.json").write_text(json.dumps(payload, indent=1) + "\n")
