@@ -10,9 +10,10 @@ it enters. The command line parses with the checks deferred (`deferred_checks`) 
 
 A violation raises ValueError naming the flag, the value and what is allowed:
 `--ppo.lr = -0.001 is not allowed: give a finite number > 0`. NaN and infinities are refused
-for every limited field. Tuples are checked element by element; None (an optional field left
-unset) and strings, booleans and Literals (tyro checks those) are not limited here.
-`tests/common/test_config_limits.py` holds every numeric field of `RunConfig` to having one.
+for every limited field, and so is an integer too large for a float. Tuples are checked element
+by element; None is refused unless the field is optional. Strings, booleans and Literals are
+not limited here: tyro checks them on the command line and `learner.config._from_dict` in a saved
+file. `tests/learner/test_config_errors.py` holds every numeric field of `RunConfig` to having one.
 """
 
 from __future__ import annotations
@@ -118,9 +119,17 @@ def check_limits(obj) -> None:
                              f"{'a list of values, each ' if many else 'one value, '}{limit.describe()}")
         for x in value if many else (value,):
             if (isinstance(x, bool) or not isinstance(x, int if name in ints else (int, float))
-                    or not limit.allows(float(x))):
+                    or not limit.allows(_as_float(x))):
                 each = " each" if many else ""
                 raise ValueError(f"{flag(prefix, name)} = {value!r} is not allowed: give{each} {limit.describe()}")
+
+
+def _as_float(x: int | float) -> float:
+    """`float(x)`, or NaN (refused by every limit) for an integer too large for a float."""
+    try:
+        return float(x)
+    except OverflowError:
+        return math.nan
 
 
 def _numeric(hint) -> bool:

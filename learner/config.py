@@ -211,4 +211,6 @@ def _from_dict(cls: type, raw: dict):
             raise ValueError(f"{flag} = {getattr(cfg, name)!r} is not one of {', '.join(map(str, get_args(hint)))}")
         if hint is bool and not isinstance(getattr(cfg, name), bool):
             raise ValueError(f"{flag} = {getattr(cfg, name)!r} is not one of true, false")
+        if hint is str and not isinstance(getattr(cfg, name), str):
+            raise ValueError(f"{flag} = {getattr(cfg, name)!r} is not allowed: give a string")
     return cfg

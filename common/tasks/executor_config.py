@@ -136,8 +136,8 @@ class ExecutorConfig:
 
     FLAG_PREFIX: ClassVar[str] = "task.executor"
     LIMITS: ClassVar[dict[str, Limit]] = {
-        "split_seed": at_least(0), "tau": between(1, 60, integer=True), "effort_scale": above(0),
-        "passive_damping": at_least(0, False), "pd_action_scale": above(0), "alpha": between(0, 1, hi_open=True),
+        "split_seed": at_least(0), "tau": between(1, 60, integer=True), "effort_scale": between(0, 100, lo_open=True),
+        "passive_damping": between(0, 100), "pd_action_scale": between(0, 10, lo_open=True), "alpha": between(0, 1, lo_open=True, hi_open=True),
         "reward_weights": at_least(0, False), "reward_scales": above(0), "rsis_frames": at_least(0),
         "rsis_translation_m": at_least(0, False), "rsis_velocity_std": at_least(0, False), "catch_up_steps": at_least(0),
         "speed": between(0.05, 10), "ankle_armature": between(0, 10), "arm_armature": between(0, 10),
@@ -148,6 +148,8 @@ class ExecutorConfig:
     def validate(self) -> None:
         """ValueError naming the first value outside what is allowed."""
         check_limits(self)
+        if len(self.rsis_frames) != 2:
+            raise ValueError(f"--task.executor.rsis-frames = {self.rsis_frames} is not allowed: give two integers, low high")
         lo, hi = self.rsis_frames
         if not lo <= hi:
             raise ValueError(f"--task.executor.rsis-frames = {self.rsis_frames} must be low <= high")
@@ -157,3 +159,5 @@ class ExecutorConfig:
                              f"{', '.join(TERMS)}")
         if len(self.reward_weights) != 5 or len(self.reward_scales) != 5:
             raise ValueError("--task.executor.reward-weights and --task.executor.reward-scales take 5 values each")
+        if not sum(self.reward_weights) > 0:
+            raise ValueError(f"--task.executor.reward-weights = {self.reward_weights}: give at least one weight > 0")

@@ -8,7 +8,8 @@ alpha. On the evaluation's episodes (`executor_eval.run_episode`: every clip of 
 `--starts` start frames each, the mean action), per split:
 - success (all five terms) and pose success (the four pose terms), as `morphmimic evaluate`;
 - of the starts that fail the pose terms: which term falls first (every pose term below alpha at
-  that step counts, so the shares may add up to more than 100%) and the median step it falls at;
+  that step counts, so the shares may add up to more than 100%) and the median step it falls at
+  (an episode whose simulation diverged before any pose term fell is in neither);
 - at the first step where the joint-position term (eq. 5's r_pj: every body's position relative
   to the root in the root's heading frame) falls below alpha: each body's share of its squared
   error, and how far the root is then from the reference's: its rotation angle, split into

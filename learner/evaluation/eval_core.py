@@ -68,6 +68,10 @@ def load(path: str | Path) -> Loaded:
         raise SystemExit(f"{file} holds no 'config'/'policy': not a morphmimic training checkpoint")
     try:
         cfg = RunConfig.from_json(str(state["config"]))
+        if cfg.task.name == "executor":  # its named clips must play on the humanoid
+            from common.tasks.executor import labelled_clips
+
+            labelled_clips(cfg.task)
     except ValueError as exc:
         raise SystemExit(f"{file}: its saved configuration is refused: {exc}") from None
     return Loaded(cfg, state, file)
@@ -95,7 +99,7 @@ def make_policy(loaded: Loaded, obs_dim: int, act_dim: int) -> GaussianPolicy:
     policy = GaussianPolicy(obs_dim, act_dim, loaded.cfg.policy)
     try:
         policy.load_state_dict(loaded.state["policy"])
-    except RuntimeError as exc:
+    except (RuntimeError, TypeError, AttributeError) as exc:  # wrong shapes or keys; not a state dict at all
         raise SystemExit(f"{loaded.path}: the policy does not fit task {loaded.cfg.task.name!r} as this code builds it "
                          f"(obs {obs_dim}, act {act_dim}): {exc}") from None
     policy.eval()

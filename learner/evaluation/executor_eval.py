@@ -223,13 +223,16 @@ SETTABLE = ("ankle_armature", "arm_armature", "pd_velocity_target", "pd_action_s
 """`ExecutorConfig` fields an evaluation may change from what the checkpoint trained with
 (`--set NAME=VALUE`): the body's model, the PD, and how the reward and the rule measure. The
 clip set, the split and the perturbations have options of their own."""
+ONLY_FOR_ACTUATION = {"pd_velocity_target": "pd", "pd_action_scale": "pd", "effort_scale": "torque",
+                      "passive_damping": "torque"}
+"""`SETTABLE` fields that only one actuation reads: setting one on the other would change nothing."""
 
 
 def _json_or_word(text: str) -> Any:
     """`text` as JSON, else the bare word itself (a choice such as `step_mean`)."""
     try:
         return json.loads(text)
-    except ValueError:
+    except (ValueError, RecursionError):  # RecursionError: nested deeper than a config value can be
         return text
 
 
@@ -243,11 +246,18 @@ def with_settings(loaded: eval_core.Loaded, pairs: list[str]) -> eval_core.Loade
     if not pairs:
         return loaded
     current = dataclasses.asdict(loaded.cfg.task.executor)
+    actuation, named = loaded.cfg.task.executor.actuation, set()
     for pair in pairs:
         name, sep, text = pair.partition("=")
         name = name.strip().replace("-", "_")
         if not sep or name not in SETTABLE:
             raise ValueError(f"--set {pair!r}: give NAME=VALUE with NAME one of {', '.join(SETTABLE)}")
+        if name in named:
+            raise ValueError(f"--set {pair!r}: {name} is set twice; give each name once")
+        if ONLY_FOR_ACTUATION.get(name, actuation) != actuation:
+            raise ValueError(f"--set {pair!r}: {name} only acts on {ONLY_FOR_ACTUATION[name]} actuation and this "
+                             f"checkpoint uses {actuation}, so it would change nothing")
+        named.add(name)
         if isinstance(current[name], tuple) and not text.lstrip().startswith("["):
             current[name] = [_json_or_word(x.strip()) for x in text.split(",")]
         else:

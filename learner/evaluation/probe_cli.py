@@ -39,12 +39,27 @@ class Opened:
     title: str  # the run's name, with the settings changed
 
 
+UNREAD_SETTINGS = ("terminate_on", "reward_weights")
+"""`--set` fields no probe figure depends on (they only weigh the return or pick the checkpoint's
+own rule; every probe reads the five terms against alpha itself)."""
+
+
 def open_checkpoint(p: argparse.ArgumentParser, args: argparse.Namespace) -> Opened:
-    """Load `args.checkpoint`; a usage error (exit 2) naming the value when it is no executor or a
-    `--set` pair is bad, before any episode runs."""
+    """Load `args.checkpoint`; a usage error (exit 2) naming the value when it is no executor, a
+    `--set` pair is bad or changes nothing the probe reads, a split holds no clips or `--out`
+    cannot be written, before any episode runs. Repeated `--splits` are run once."""
     from learner.evaluation import eval_core
     from learner.evaluation import executor_eval as xe
 
+    args.splits = list(dict.fromkeys(args.splits))
+    if args.out:
+        try:
+            Path(args.out).mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            p.error(f"--out {args.out}: cannot make that folder ({exc.strerror or exc})")
+    unread = [pair for pair in args.settings if pair.partition("=")[0].strip().replace("-", "_") in UNREAD_SETTINGS]
+    if unread:
+        p.error(f"--set {' '.join(unread)}: no figure of the probe depends on {', '.join(UNREAD_SETTINGS)}")
     loaded = eval_core.load(args.checkpoint)
     if loaded.cfg.task.name != "executor":
         p.error(f"--checkpoint {args.checkpoint} is a {loaded.cfg.task.name!r} checkpoint; the probe needs an executor")
@@ -53,6 +68,9 @@ def open_checkpoint(p: argparse.ArgumentParser, args: argparse.Namespace) -> Ope
     except ValueError as exc:
         p.error(str(exc))
     clips = xe.default_clips(loaded.cfg.task, args.splits)
+    empty = [s for s in args.splits if not any(c.split == s for c in clips)]
+    if empty:
+        p.error(f"--splits {' '.join(empty)}: no clip of {loaded.cfg.name} is in that split")
     env = xe.make_eval_env(loaded, clips)
     policy = eval_core.make_policy(loaded, env.obs_dim, env.nu)
     title = loaded.cfg.name + (f" with --set {' '.join(args.settings)}" if args.settings else "")
@@ -77,7 +95,6 @@ def write(out: str, stem: str, text: str, payload: dict) -> None:
     """`<out>/<stem>.md` and `.json` (nothing when `out` is empty)."""
     if not out:
         return
-    folder = Path(out)
-    folder.mkdir(parents=True, exist_ok=True)
+    folder = Path(out)  # made (or refused) by `open_checkpoint`
     (folder / f"{stem}.md").write_text(text)
     (folder / f"{stem}.json").write_text(json.dumps(payload, indent=1) + "\n")

@@ -44,6 +44,8 @@ def left_out_mask(joints: list[str], patterns: list[str]) -> np.ndarray:
     pattern that matches no joint, with the joints there are."""
     mask = np.zeros(len(joints), dtype=bool)
     for pat in patterns:
+        if not pat.strip():
+            raise ValueError(f"--leave-out {pat!r}: give part of a joint name; the joints are {', '.join(sorted(set(joints)))}")
         hit = np.array([pat in name for name in joints])
         if not hit.any():
             raise ValueError(f"--leave-out {pat!r} matches no joint; the joints are {', '.join(sorted(set(joints)))}")
@@ -68,10 +70,14 @@ class EpisodeProbe:
         self.holds_without = True
         self.sq_sum = {True: 0.0, False: 0.0}  # the left-out DOF's squared error summed, by body touching
         self.dof_steps = {True: 0, False: 0}
+        self._seen: dict | None = None
 
     def __call__(self, env, k: int) -> None:
-        err = (env.data.qvel[6 : env.nv] - env.scheduler.frame(0).qvel[6:]) ** 2
         terms = env.last_terms
+        if not terms or terms is self._seen:  # a diverged step leaves the last step's terms
+            return
+        self._seen = terms
+        err = (env.data.qvel[6 : env.nv] - env.scheduler.frame(0).qvel[6:]) ** 2
         d, m = env.data, env.model
         touched = {int(m.geom_bodyid[g]) for c in d.contact[: d.ncon] for g in (c.geom1, c.geom2)}
         for i in np.flatnonzero(self.left_out):
@@ -144,6 +150,9 @@ def main(argv: list[str]) -> int:
                    help="joints (by part of their name) left out of the velocity term for the third column")
     args = p.parse_args(argv)
     opened = probe_cli.open_checkpoint(p, args)
+    if opened.loaded.cfg.task.executor.joint_velocity != "instant":
+        p.error("joint_velocity = step_mean: the probe reads the simulator's instant joint velocities, "
+                "which that term does not compare; probe with --set joint_velocity=instant")
     joints = joint_of_dof(opened.env.ref_model)
     try:
         mask = left_out_mask(joints, args.leave_out)

@@ -44,6 +44,7 @@ def test_every_numeric_field_of_the_run_config_has_a_limit() -> None:
     (["--policy.hidden", "64", "0"], "--policy.hidden = (64, 0) is not allowed: give each an integer >= 1"),
     (["--port-base", "70000"], "--port-base = 70000 is not allowed: give an integer in [0, 65532]"),
     (["--preset", "executor-tiny", "--task.executor.tau", "0"], "--task.executor.tau = 0 is not allowed"),
+    (["--preset", "executor-tiny", "--task.executor.split-seed", "1" + "0" * 400], "--task.executor.split-seed = 1000"),
     (["--preset", "lower_biped-tiny", "--task.imitate.speed-range", "2", "1"], "speed-range = (2.0, 1.0) must be low <= high"),
     (["--ppo.lr", "abc"], "--ppo.lr: could not convert string to float: 'abc'; expected: --ppo.lr FLOAT"),
     (["--ppo.lrr", "1"], "Unrecognized options: --ppo.lrr"),
@@ -88,12 +89,19 @@ def test_a_checkpoint_that_is_not_one_or_not_this_tasks_makes_no_run_folder(tmp_
 
 
 def test_a_saved_config_with_a_bad_value_is_refused_by_name() -> None:
+    import json
+
     text = RunConfig().to_json().replace('"lr": 0.0003', '"lr": -1.0')
     with pytest.raises(ValueError, match=r"--ppo.lr = -1.0 is not allowed"):
         RunConfig.from_json(text)
+    raw = json.loads(RunConfig().to_json())
+    raw["task"]["executor"]["rsis_frames"] = [1, 2, 3]
+    with pytest.raises(ValueError, match=re.escape("--task.executor.rsis-frames = (1, 2, 3) is not allowed: give two")):
+        RunConfig.from_json(json.dumps(raw))
 
 
 @pytest.mark.parametrize("edit", [
+    lambda c: c.update(name=5),
     lambda c: c["ppo"].update(lr="abc"),
     lambda c: c.update(task=5),
     lambda c: c["policy"].update(hidden="wide"),

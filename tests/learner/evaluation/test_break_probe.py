@@ -77,3 +77,55 @@ def test_a_bad_setting_and_a_bad_count_are_usage_errors(run_dir: Path, capsys) -
         with pytest.raises(SystemExit) as exc:
             break_probe.main(["--checkpoint", str(run_dir), *argv])
         assert exc.value.code == 2 and words in capsys.readouterr().err
+
+
+def test_the_probes_refuse_what_they_cannot_measure_before_any_episode(run_dir: Path, tmp_path: Path, capsys) -> None:
+    from learner.evaluation import break_probe, velocity_probe
+
+    a_file = tmp_path / "taken"
+    a_file.write_text("not a folder")
+    cases = [
+        (break_probe, ["--set", "terminate_on=joint_position"], "no figure of the probe depends on terminate_on"),
+        (break_probe, ["--splits", "unused"], "--splits unused: no clip of xtiny is in that split"),
+        (break_probe, ["--out", str(a_file / "probe")], f"--out {a_file / 'probe'}: cannot make that folder"),
+        (velocity_probe, ["--set", "joint_velocity=step_mean"], "the probe reads the simulator's instant joint velocities"),
+    ]
+    for module, argv, says in cases:
+        with pytest.raises(SystemExit) as exc:
+            module.main(["--checkpoint", str(run_dir), *argv])
+        assert exc.value.code == 2, argv
+        assert says in capsys.readouterr().err, argv
+
+
+def test_a_step_that_diverged_adds_nothing_to_either_probe(run_dir: Path) -> None:
+    """A diverged step leaves the previous step's terms (or none, on the first step) in
+    `env.last_terms`: the hooks skip it instead of reading stale or missing terms."""
+    from learner.evaluation import eval_core, executor_eval as xe
+    from learner.evaluation.break_probe import BreakHook
+    from learner.evaluation.velocity_probe import EpisodeProbe, joint_of_dof, left_out_mask
+
+    loaded = eval_core.load(run_dir)
+    env = xe.make_eval_env(loaded, xe.resolve_clips(["humanoid3d_walk"], loaded.cfg.task))
+    env.reset(0, env.space.default_array, clip_id="humanoid3d_walk", start_s=0.0)
+    velocity = EpisodeProbe(env, left_out_mask(joint_of_dof(env.ref_model), ["ankle"]))
+    pose = BreakHook(env)
+    for hook in (velocity, pose):
+        hook(env, 1)  # last_terms is still reset's {}
+    assert velocity.dof_steps == {True: 0, False: 0} and pose.first_pose is None
+    env.step(np.zeros(env.nu))
+    velocity(env, 1)
+    velocity(env, 2)  # the same terms again: skipped
+    assert velocity.dof_steps[True] + velocity.dof_steps[False] == 6
+
+
+def test_a_saved_config_naming_clips_the_humanoid_lacks_is_refused_at_load(run_dir: Path, tmp_path: Path) -> None:
+    from learner import checkpoint
+    from learner.evaluation import eval_core
+
+    state = checkpoint.load(eval_core.resolve(run_dir))
+    raw = json.loads(state["config"])
+    raw["task"]["executor"]["clips"] = ["nope_clip"]
+    state["config"] = json.dumps(raw)
+    checkpoint.save(tmp_path / "ckpt", 1, state, keep=1)
+    with pytest.raises(SystemExit, match=r"its saved configuration is refused: clips \['nope_clip'\] do not play"):
+        eval_core.load(tmp_path)

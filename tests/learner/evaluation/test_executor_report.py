@@ -112,7 +112,12 @@ def test_set_evaluates_the_policy_on_a_changed_body_in_every_worker(run_dir: Pat
     ("ankle_armature=-1", "--task.executor.ankle-armature = -1 is not allowed: give a finite number in [0, 10]"),
     ("target_velocity_window=2.5", "--task.executor.target-velocity-window = 2.5 is not allowed: give an integer in [1, 30]"),
     ("joint_velocity=bogus", "--task.executor.joint-velocity = 'bogus' is not one of instant, step_mean"),
-    ("alpha=null", "--task.executor.alpha = None is not allowed: give a finite number in [0, 1)"),
+    ("alpha=null", "--task.executor.alpha = None is not allowed: give a finite number in (0, 1)"),
+    ("alpha=0", "--task.executor.alpha = 0 is not allowed: give a finite number in (0, 1)"),
+    ("target_velocity_window=1" + "0" * 400, "--task.executor.target-velocity-window = 1000"),
+    ("alpha=" + "[" * 5000, "--task.executor.alpha = '[[[["),
+    ("reward_weights=0,0,0,0,0", "--task.executor.reward-weights = (0, 0, 0, 0, 0): give at least one weight > 0"),
+    ("pd_action_scale=2", "pd_action_scale only acts on pd actuation and this checkpoint uses torque, so it would change nothing"),
     ("ankle_armature=true", "--task.executor.ankle-armature = True is not allowed"),
     ("ankle_armature=[1,2]", "--task.executor.ankle-armature = (1, 2) is not allowed: give one value"),
     ("terminate_on=joint_speed", "--task.executor.terminate-on = ('joint_speed',): give one or more distinct terms"),
@@ -125,6 +130,14 @@ def test_bad_set_is_a_usage_error_naming_the_value(run_dir: Path, tmp_path: Path
     assert exc.value.code == 2
     assert says in capsys.readouterr().err
     assert not (tmp_path / "e").exists()
+
+
+def test_set_refuses_a_name_given_twice(run_dir: Path, capsys) -> None:
+    from learner.evaluation import evaluate
+
+    with pytest.raises(SystemExit) as exc:
+        evaluate.main(["--checkpoint", str(run_dir), "--set", "alpha=0.2", "alpha=0.3"])
+    assert exc.value.code == 2 and "alpha is set twice; give each name once" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("option", [["--zero-action"], ["--starts", "3"], ["--clips", "humanoid3d_walk"],
