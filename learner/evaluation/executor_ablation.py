@@ -26,8 +26,8 @@ from learner.evaluation import cli_args, eval_core, executor_eval as xe, executo
 
 
 def settings(cfg) -> str:
-    """The four ablated settings of an arm, in the table's words, and the training wait's end and
-    the rotor inertia of the light segments when they are not the defaults."""
+    """The four ablated settings of an arm, in the table's words, and the training wait (its
+    length and end) and the rotor inertia of the light segments when they are not the defaults."""
     ex = cfg.task.executor
     words = [
         ex.actuation,
@@ -35,9 +35,11 @@ def settings(cfg) -> str:
         "balancer" if ex.clip_draws == "balancer" else "uniform draws",
         "reactive init" if ex.reactive_init else "no reactive init",
     ]
-    if ex.catch_up_ends == "on_track":
-        words.append("wait ends on track")
     default = type(ex)()
+    if ex.catch_up_steps != default.catch_up_steps:
+        words.append(f"wait {ex.catch_up_steps} steps" if ex.catch_up_steps else "no wait")
+    if ex.catch_up_ends == "on_track" and ex.catch_up_steps:
+        words.append("wait ends on track")
     if (ex.ankle_armature, ex.arm_armature) != (default.ankle_armature, default.arm_armature):
         words.append(f"rotor inertia ankles {ex.ankle_armature:g}, arms {ex.arm_armature:g} kg m^2")
     return " · ".join(words)

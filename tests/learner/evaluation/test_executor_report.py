@@ -229,6 +229,9 @@ def test_ablation_settings_name_the_wait_and_the_rotor_inertia_only_when_changed
     ex = dataclasses.replace(cfg.task.executor, catch_up_ends="on_track")
     on_track = dataclasses.replace(cfg, task=dataclasses.replace(cfg.task, executor=ex))
     assert settings(on_track) == "pd · per-term · balancer · reactive init · wait ends on track"
+    ex = dataclasses.replace(cfg.task.executor, reactive_init=False, catch_up_steps=0, catch_up_ends="on_track")
+    no_wait = dataclasses.replace(cfg, task=dataclasses.replace(cfg.task, executor=ex))
+    assert settings(no_wait) == "pd · per-term · balancer · no reactive init · no wait"
     ex = dataclasses.replace(cfg.task.executor, ankle_armature=0.1, arm_armature=0.1)
     heavy = dataclasses.replace(cfg, task=dataclasses.replace(cfg.task, executor=ex))
     assert settings(heavy) == "pd · per-term · balancer · reactive init · rotor inertia ankles 0.1, arms 0.1 kg m^2"
