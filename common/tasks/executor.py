@@ -368,7 +368,9 @@ class ExecutorEnv:
         return self._observe(self._actual_kin()), {"clip_id": getattr(self.scheduler, "clip_id", ""), "rsis_offset": offset}
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
-        a = np.nan_to_num(np.asarray(action, dtype=np.float64))
+        a = np.asarray(action, dtype=np.float64)
+        if not np.isfinite(a).all():  # checked first: nan_to_num on every step cost 30 us
+            a = np.nan_to_num(a)
         if self.ex.actuation == "torque":
             self.data.ctrl[:] = np.clip(a, -1.0, 1.0)
         else:

@@ -177,7 +177,8 @@ class DatasetScheduler:
         self._row0 = self.lookback + 1
 
     def frame(self, i: int) -> TargetFrame:
-        row = int(np.clip(self._row0 + self.k + i, 0, len(self._q) - 1))
+        # NOTE: min/max on the int, not np.clip: a scalar np.clip cost 10 us, a tenth of the executor's step
+        row = min(max(self._row0 + self.k + int(i), 0), len(self._q) - 1)
         return TargetFrame(self._q[row], self._v[row])
 
     def advance(self, rng: np.random.Generator, qpos: np.ndarray) -> bool:
