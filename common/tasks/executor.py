@@ -353,7 +353,7 @@ class ExecutorEnv:
             lo, hi = self.ex.rsis_frames
             offset = int(self.rng.integers(lo, hi + 1)) * (1 if self.rng.random() < 0.5 else -1)
         start = self.scheduler.frame(offset)
-        self.data = mujoco.MjData(self.model)
+        mujoco.mj_resetData(self.model, self.data)  # NOTE: a new MjData per episode cost 0.6 ms; this is the same state
         self.data.qpos[: self.nq] = start.qpos
         self.data.qvel[: self.nv] = start.qvel
         if self.ex.reactive_init:

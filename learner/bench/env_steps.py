@@ -5,9 +5,10 @@ For optimizing the environments' Python (observation, reward, termination) witho
 what they compute. The other revision is checked out into a temporary `git worktree`; each
 round runs one subprocess per tree (alternating which goes first, so background load hits both
 alike) that, per preset, resets on the preset's base shape, steps `--steps` control steps with
-seeded random actions (restarting episodes that end) and reports milliseconds per step and a
-digest of every observation, reward and end flag. Reported per preset: the median over rounds
-for each tree, their ratio (other / this: above 1 means this tree is faster) and whether the
+seeded random actions (restarting episodes that end, or every `--episode-steps` steps: about 40
+is an early training run's episode) and reports milliseconds per step, milliseconds per reset and
+a digest of every observation, reward and end flag. Reported per preset: the median over rounds
+for each tree, their ratios (other / this: above 1 means this tree is faster) and whether the
 digests agree (the trajectories are bit for bit the same). Nothing listens; besides the
 temporary worktree, git records it under `.git/worktrees` until it is removed (and pruned).
 """
@@ -33,8 +34,9 @@ ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_PRESETS = "executor,executor-pd,quadruped,lower_biped,fish"
 
 
-def time_presets(presets: list[str], steps: int, seed: int) -> dict[str, dict[str, object]]:
-    """In this process: per preset, ms per control step and a SHA-256 of the trajectory."""
+def time_presets(presets: list[str], steps: int, seed: int, episode_steps: int = 0) -> dict[str, dict[str, object]]:
+    """In this process: per preset, ms per control step, ms per reset and a SHA-256 of the
+    trajectory; `episode_steps` > 0 also restarts an episode after that many steps."""
     from common.tasks.registry import make_env
     from learner.presets import PRESETS
 
@@ -46,21 +48,27 @@ def time_presets(presets: list[str], steps: int, seed: int) -> dict[str, dict[st
         digest = hashlib.sha256()
         obs, _ = env.reset(seed, params)
         digest.update(np.asarray(obs).tobytes())
-        elapsed = 0.0
+        elapsed = reset_s = 0.0
+        resets = length = 0
         for _ in range(steps):
             action = (0.3 * rng.standard_normal(env.act_dim)).astype(np.float32)
             start = time.perf_counter()
             obs, reward, terminated, truncated, _ = env.step(action)
             elapsed += time.perf_counter() - start
+            length += 1
             digest.update(np.asarray(obs).tobytes() + np.float64(reward).tobytes() + bytes([bool(terminated), bool(truncated)]))
-            if terminated or truncated:
+            if terminated or truncated or length == episode_steps:
+                start = time.perf_counter()
                 obs, _ = env.reset(None, params)
+                reset_s += time.perf_counter() - start
+                resets, length = resets + 1, 0
                 digest.update(np.asarray(obs).tobytes())
-        out[name] = {"step_ms": 1e3 * elapsed / steps, "digest": digest.hexdigest()}
+        out[name] = {"step_ms": 1e3 * elapsed / steps, "reset_ms": 1e3 * reset_s / max(resets, 1), "resets": resets,
+                     "digest": digest.hexdigest()}
     return out
 
 
-def _run_tree(tree: Path, presets: list[str], steps: int, seed: int) -> dict[str, dict[str, object]]:
+def _run_tree(tree: Path, presets: list[str], steps: int, seed: int, episode_steps: int) -> dict[str, dict[str, object]]:
     """`time_presets` in a subprocess that imports `tree`'s modules: the tree goes first on the
     path explicitly (an editable install's import hook would otherwise serve this checkout's
     modules, e.g. under PYTHONSAFEPATH), this file's function runs against them (so revisions
@@ -68,7 +76,7 @@ def _run_tree(tree: Path, presets: list[str], steps: int, seed: int) -> dict[str
     here = str(Path(__file__))
     code = (f"import json, sys; sys.path.insert(0, {str(tree)!r}); g = {{'__file__': {here!r}, '__name__': 'env_steps'}}; "
             f"exec(compile(open({here!r}).read(), {here!r}, 'exec'), g); import common; "
-            f"print(json.dumps({{'from': common.__file__, 'presets': g['time_presets']({presets!r}, {steps}, {seed})}}))")
+            f"print(json.dumps({{'from': common.__file__, 'presets': g['time_presets']({presets!r}, {steps}, {seed}, {episode_steps})}}))")
     env = {k: v for k, v in os.environ.items() if k != "PYTHONSAFEPATH"}
     proc = subprocess.run([sys.executable, "-c", code], cwd=tree, env=env, capture_output=True, text=True, check=False)
     if proc.returncode != 0:
@@ -94,6 +102,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--steps", type=cli_args.positive_int, default=400, help="control steps per preset and round")
     parser.add_argument("--rounds", type=cli_args.positive_int, default=5, help="rounds, each timing both trees")
     parser.add_argument("--seed", type=cli_args.seed, default=0)
+    parser.add_argument("--episode-steps", type=cli_args.positive_int, default=None,
+                        help="also restart an episode after this many steps (default: only when it ends)")
     args = parser.parse_args(argv)
     from learner.presets import PRESETS
 
@@ -113,23 +123,32 @@ def main(argv: list[str] | None = None) -> int:
             raise SystemExit(f"morphmimic bench env-steps: git worktree add failed: {added.stderr.strip()}")
         try:
             times: dict[str, dict[str, list[float]]] = {p: {"this": [], "other": []} for p in presets}
+            reset_ms: dict[str, dict[str, list[float]]] = {p: {"this": [], "other": []} for p in presets}
+            resets: dict[str, int] = {}
             digests: dict[str, dict[str, set[str]]] = {p: {"this": set(), "other": set()} for p in presets}
             for r in range(args.rounds):
                 order = [("this", ROOT), ("other", other)]
                 for label, tree in (order if r % 2 == 0 else order[::-1]):
-                    for name, m in _run_tree(tree, presets, args.steps, args.seed).items():
+                    for name, m in _run_tree(tree, presets, args.steps, args.seed, args.episode_steps or 0).items():
                         times[name][label].append(float(m["step_ms"]))
+                        reset_ms[name][label].append(float(m["reset_ms"]))
+                        resets[name] = int(m["resets"])
                         digests[name][label].add(str(m["digest"]))
                 print(f"round {r + 1}/{args.rounds} done", flush=True)
         finally:
             _git("worktree", "remove", "--force", str(other))
             _git("worktree", "prune")
-    print(f"control step, this tree against {args.against} ({rev.stdout.strip()[:10]}); {args.steps} steps x {args.rounds} rounds")
-    print(f"{'preset':<14} {'this ms':>8} {'other ms':>9} {'other/this':>10}  same trajectory")
+    print(f"control step and reset, this tree against {args.against} ({rev.stdout.strip()[:10]}); {args.steps} steps x "
+          f"{args.rounds} rounds" + (f", episodes of at most {args.episode_steps} steps" if args.episode_steps else ""))
+    print(f"{'preset':<14} {'this ms':>8} {'other ms':>9} {'other/this':>10} {'resets':>7} {'reset ms':>9} {'other ms':>9} "
+          f"{'other/this':>10}  same trajectory")
     for name in presets:
         this, oth = statistics.median(times[name]["this"]), statistics.median(times[name]["other"])
+        r_this, r_oth = statistics.median(reset_ms[name]["this"]), statistics.median(reset_ms[name]["other"])
+        r_ratio = f"{r_oth / r_this:10.2f}" if resets[name] and r_this > 0 else f"{'-':>10}"
         same = digests[name]["this"] == digests[name]["other"] and len(digests[name]["this"]) == 1
-        print(f"{name:<14} {this:8.3f} {oth:9.3f} {oth / this:10.2f}  {'yes' if same else 'NO'}")
+        print(f"{name:<14} {this:8.3f} {oth:9.3f} {oth / this:10.2f} {resets[name]:7d} {r_this:9.3f} {r_oth:9.3f} {r_ratio}"
+              f"  {'yes' if same else 'NO'}")
     return 0
 
 

@@ -130,6 +130,31 @@ def test_dataset_scheduler_reschedules_on_deviation(env):
         DatasetScheduler(env.ref_model, env._motion, [clip], np.ones(1), env.dt, max_deviation_m=-1.0)
 
 
+def test_dataset_frames_sampled_in_chunks_are_those_of_the_whole_schedule(env):
+    """`frame` samples the schedule `CHUNK_ROWS` rows at a time as it reaches them; every frame,
+    across chunk borders, past the end and after an aligned reschedule, is bit for bit the frame
+    of a schedule sampled whole at `begin`."""
+    clips = list(env.scheduler.clip_ids)
+    chunked = DatasetScheduler(env.ref_model, env._motion, clips, np.ones(len(clips)) / len(clips), env.dt, lookahead=2)
+    whole = DatasetScheduler(env.ref_model, env._motion, clips, np.ones(len(clips)) / len(clips), env.dt, lookahead=2)
+    whole.CHUNK_ROWS = 10**9
+    rng_a, rng_b = np.random.default_rng(3), np.random.default_rng(3)
+    chunked.begin(rng_a, "humanoid3d_walk", 0.2)
+    whole.begin(rng_b, "humanoid3d_walk", 0.2)
+    assert len(chunked._q) < len(whole._q)  # the walk's rest is longer than a chunk
+    aligned = 0
+    for _ in range(400):
+        for i in (-13, -1, 0, 1, 2, 3):
+            a, b = chunked.frame(i), whole.frame(i)
+            assert np.array_equal(a.qpos, b.qpos) and np.array_equal(a.qvel, b.qvel)
+        pose = whole.frame(1).qpos.copy()
+        pose[0:2] += 0.3  # the next clip is placed under a character off its target
+        moved = chunked.advance(rng_a, pose)
+        assert moved == whole.advance(rng_b, pose)
+        aligned += moved
+    assert aligned >= 1 and chunked.clip_id == whole.clip_id
+
+
 @pytest.mark.parametrize("speed", [1.0, 1.5])
 def test_dataset_velocities_are_whole_at_the_clips_first_and_last_frames(env, speed):
     """At a clip's first and last frames the target velocity is the difference over two control

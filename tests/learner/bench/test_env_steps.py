@@ -28,15 +28,19 @@ def _in_a_git_checkout() -> bool:
 
 @pytest.mark.skipif(not _in_a_git_checkout(), reason="needs a git checkout with a HEAD commit")
 def test_against_head_finds_the_same_trajectory(capsys: pytest.CaptureFixture[str]) -> None:
-    assert env_steps.main(["--against", "HEAD", "--presets", "executor", "--steps", "40", "--rounds", "1"]) == 0
+    assert env_steps.main(["--against", "HEAD", "--presets", "executor", "--steps", "40", "--rounds", "1",
+                           "--episode-steps", "10"]) == 0
     row = [line for line in capsys.readouterr().out.splitlines() if line.startswith("executor ")]
     assert len(row) == 1 and row[0].split()[-1] == "yes", row
+    assert int(row[0].split()[4]) >= 4  # restarted at least every 10 steps: the resets were timed too
 
 
 def test_a_trajectory_digest_changes_with_the_actions() -> None:
     first = env_steps.time_presets(["executor"], 20, seed=0)["executor"]["digest"]
     assert env_steps.time_presets(["executor"], 20, seed=0)["executor"]["digest"] == first
     assert env_steps.time_presets(["executor"], 20, seed=1)["executor"]["digest"] != first
+    short = env_steps.time_presets(["executor"], 20, seed=0, episode_steps=5)["executor"]
+    assert short["resets"] >= 4 and short["reset_ms"] > 0 and short["digest"] != first
 
 
 @pytest.mark.skipif(not _in_a_git_checkout(), reason="needs a git checkout with a HEAD commit")
