@@ -49,25 +49,21 @@ def root_offsets(actual, target) -> dict[str, float]:
             "com_forward_m": float(forward), "com_left_m": float(left)}
 
 
-class BreakHook:
+class BreakHook(probe_cli.StepHook):
     """The `on_step` hook of one episode: the pose terms that fall first and when, and at the first
     joint-position break each body's squared error and the root's offsets (`root_offsets`)."""
 
     def __init__(self, env):
         from common.tasks import executor_rewards as rw
 
+        super().__init__()
         self.pose_terms, self.alpha = rw.POSE_TERMS, env.ex.alpha
         self.first_pose: list[str] | None = None
         self.first_pose_step: int | None = None
         self.body_sq: np.ndarray | None = None
         self.offsets: dict[str, float] | None = None
-        self._seen: dict | None = None
 
-    def __call__(self, env, k: int) -> None:
-        terms = env.last_terms
-        if not terms or terms is self._seen:  # a diverged step leaves the last step's terms
-            return
-        self._seen = terms
+    def step(self, env, terms: dict[str, float], k: int) -> None:
         if self.first_pose is None:
             fell = [n for n in self.pose_terms if terms[n] < self.alpha]
             if fell:

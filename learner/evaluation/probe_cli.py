@@ -77,6 +77,25 @@ def open_checkpoint(p: argparse.ArgumentParser, args: argparse.Namespace) -> Ope
     return Opened(loaded, clips, env, policy, title)
 
 
+class StepHook:
+    """A probe's `on_step` hook for one episode: `step(env, terms, k)` sees each step's five reward
+    terms once. A step that diverged is skipped: it leaves the last step's terms in `env.last_terms`
+    (or reset's empty ones on the first step)."""
+
+    def __init__(self) -> None:
+        self._seen: dict | None = None
+
+    def __call__(self, env, k: int) -> None:
+        terms = env.last_terms
+        if not terms or terms is self._seen:
+            return
+        self._seen = terms
+        self.step(env, terms, k)
+
+    def step(self, env, terms: dict[str, float], k: int) -> None:
+        raise NotImplementedError
+
+
 def episodes(opened: Opened, split: str, starts: int, make_hook: Callable[[Any], Any]):
     """Yield (hook, record) for every episode of `split` (each clip from `starts` start frames, the
     mean action, `executor_eval.run_episode`), `make_hook(env)` making each episode's `on_step`."""

@@ -53,13 +53,14 @@ def left_out_mask(joints: list[str], patterns: list[str]) -> np.ndarray:
     return mask
 
 
-class EpisodeProbe:
+class EpisodeProbe(probe_cli.StepHook):
     """The `on_step` hook of one episode: the velocity error per DOF at the first step where r_wj
     falls below alpha, and whether the episode holds with the left-out DOF ignored."""
 
     def __init__(self, env, left_out: np.ndarray):
         from common.tasks import executor_rewards as rw
 
+        super().__init__()
         self.pose_terms, self.k, self.alpha = rw.POSE_TERMS, env.ex.reward_scales[4], env.ex.alpha
         self.left_out = left_out
         dof_body = env.ref_model.jnt_bodyid[env.ref_model.dof_jntid[6:]]
@@ -70,13 +71,8 @@ class EpisodeProbe:
         self.holds_without = True
         self.sq_sum = {True: 0.0, False: 0.0}  # the left-out DOF's squared error summed, by body touching
         self.dof_steps = {True: 0, False: 0}
-        self._seen: dict | None = None
 
-    def __call__(self, env, k: int) -> None:
-        terms = env.last_terms
-        if not terms or terms is self._seen:  # a diverged step leaves the last step's terms
-            return
-        self._seen = terms
+    def step(self, env, terms: dict[str, float], k: int) -> None:
         err = (env.data.qvel[6 : env.nv] - env.scheduler.frame(0).qvel[6:]) ** 2
         d, m = env.data, env.model
         touched = {int(m.geom_bodyid[g]) for c in d.contact[: d.ncon] for g in (c.geom1, c.geom2)}
