@@ -104,6 +104,7 @@ class RolloutWorker:
                 else:
                     self._obs[i] = o
         self.env_steps += T * N
+        segments = [seg for env in self.envs if hasattr(env, "drain_segments") for seg in env.drain_segments()]
         msg = wire.UnrollMsg(
             actor_id=self.actor_id,
             seq=self.seq,
@@ -119,6 +120,8 @@ class RolloutWorker:
             episode_returns=returns,
             episode_lengths=lengths,
             divergences=divergences,
+            segment_clips=[clip for clip, _ in segments],
+            segment_tracked=[int(tracked) for _, tracked in segments],
         )
         self.seq += 1
         return msg

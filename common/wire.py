@@ -61,6 +61,8 @@ MAX_KEY = 256
 """Longest dict key and array name."""
 MAX_ITEMS = 1 << 20
 """Default most entries of a list or dict field."""
+MAX_COUNT = 1 << 31
+"""Largest count a message may carry (segment counts)."""
 MAX_DEPTH = 16
 """Deepest nesting of an `Any` field (a sampler state's meta is 2 deep)."""
 MAX_NDIM = 8
@@ -127,7 +129,7 @@ class UnrollMsg:
     """
 
     KIND: ClassVar[str] = "unroll"
-    VERSION: ClassVar[int] = 1
+    VERSION: ClassVar[int] = 2
     actor_id: int = field(metadata=rule(ge=0, le=MAX_ACTOR_ID))
     seq: int = field(metadata=rule(ge=0))
     """Per-actor sequence number, +1 per unroll; gaps mean lost unrolls."""
@@ -149,6 +151,10 @@ class UnrollMsg:
     """Episodes truncated in this unroll because MuJoCo reported a divergence warning."""
     sampler_outages: int = field(default=0, metadata=rule(ge=0))
     """Draws that fell back to the previous parameters because the sampler did not answer."""
+    segment_clips: list[str] = field(default_factory=list, metadata=rule(length="segments", empty_ok=True, max_len=MAX_KEY))
+    """Clips of the training segments that ended inside this unroll (tasks that track clips)."""
+    segment_tracked: list[int] = field(default_factory=list, metadata=rule(ge=0, le=1, length="segments", empty_ok=True))
+    """1 for a segment tracked to its clip's end, 0 for one a termination ended."""
 
 
 @dataclass(frozen=True)
@@ -215,12 +221,18 @@ class ValueReportMsg:
     """`(parameters, V(s))` pairs for the marginal value fit (Won & Lee 2019, Alg. 1)."""
 
     KIND: ClassVar[str] = "value_report"
-    VERSION: ClassVar[int] = 2
+    VERSION: ClassVar[int] = 3
     params: np.ndarray = field(metadata=rule(shape=("m", "n_params"), dtypes=F32))
     values: np.ndarray = field(metadata=rule(shape=("m",), dtypes=F32))
     report_id: str = field(default="", metadata=rule(max_len=128))
     """Names this report: a resend with the same id (a retry after a lost reply) is stored once.
     Empty: never deduplicated."""
+    clip_ids: list[str] = field(default_factory=list, metadata=rule(length="k", empty_ok=True, max_len=MAX_KEY))
+    """Clips whose training segments this report counts (adaptive clip sampling); empty: none."""
+    clip_segments: list[int] = field(default_factory=list, metadata=rule(ge=0, le=MAX_COUNT, length="k", empty_ok=True))
+    """Segments per clip since the last report."""
+    clip_tracked: list[int] = field(default_factory=list, metadata=rule(ge=0, le=MAX_COUNT, length="k", empty_ok=True))
+    """Of those, the segments tracked to the clip's end (the sampler checks tracked <= segments)."""
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "references": ("learner.evaluation.reference_survey", "how physical a walker's retargeted reference is over the evaluation's shapes, per root-height rule"),
     "velocity-probe": ("learner.evaluation.velocity_probe", "where an executor's joint-velocity term breaks: per joint, with a foot on the floor, with joints left out"),
     "break-probe": ("learner.evaluation.break_probe", "where an executor's pose terms break: the first to fall, each body's share, the root's lean"),
+    "learning-curve": ("learner.evaluation.learning_curve", "every checkpoint of a run evaluated alike, against steps and wall time: fall-down % or the executor's success per split"),
     "robustness": ("learner.evaluation.robustness", "zero-shot robustness: speed, projectiles, mass (UniCon Table 2)"),
     "play": ("learner.live.play", "run a checkpoint live or render it to an MP4 (schedulers: dataset, stitch, keyboard, video)"),
     "studio": ("learner.live.studio", "a browser studio: a checkpoint live in 3-D with shape sliders, schedulers, projectiles, plots"),

@@ -20,6 +20,10 @@ from learner.config import RunConfig
 from learner.data_parallel import GradientSync
 from learner.ppo import PPO, Batch
 
+MAX_CLIPS_COUNTED = 65536
+"""Distinct clip ids the learner counts segments of between two sampler reports (a bound on
+memory; the sampler draws far fewer)."""
+
 
 class Learner:
     def __init__(self, cfg: RunConfig):
@@ -47,6 +51,8 @@ class Learner:
         self.recent_returns: collections.deque[float] = collections.deque(maxlen=100)
         self.recent_lengths: collections.deque[int] = collections.deque(maxlen=100)
         self.counters: collections.Counter[str] = collections.Counter()
+        self.clip_segments: dict[str, list[int]] = {}
+        """Clip id -> [segments, tracked] since the last `take_clip_segments`."""
 
     def weights_msg(self) -> wire.WeightsMsg:
         return wire.WeightsMsg(policy_version=self.policy_version, tensors=policy_tensors(self.policy))
@@ -73,6 +79,20 @@ class Learner:
             self.recent_lengths.extend(u.episode_lengths)
             self.episodes += len(u.episode_returns)
             self.counters["divergences"] += u.divergences
+            for clip, tracked in zip(u.segment_clips, u.segment_tracked):
+                if clip not in self.clip_segments and len(self.clip_segments) >= MAX_CLIPS_COUNTED:
+                    continue
+                counts = self.clip_segments.setdefault(clip, [0, 0])
+                counts[0] += 1
+                counts[1] += int(tracked)
+
+    def take_clip_segments(self) -> tuple[list[str], list[int], list[int]]:
+        """Clip segments recorded since the last call, per clip: (ids, segments, tracked), for the
+        sampler's adaptive clip sampling (`sampler/clip_outcomes.py`)."""
+        ids = sorted(self.clip_segments)
+        out = ids, [self.clip_segments[c][0] for c in ids], [self.clip_segments[c][1] for c in ids]
+        self.clip_segments = {}
+        return out
 
     def value_pairs(self, unrolls: list[wire.UnrollMsg], n: int) -> tuple[np.ndarray, np.ndarray]:
         """`n` random `(task parameters, V(s))` pairs from these unrolls, for the sampler's

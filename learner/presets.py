@@ -190,6 +190,12 @@ def _executor_preset(variant: str = "") -> RunConfig:
     executor at 49.6 M steps and trained side by side to 56.5 M tracked 18.8-20.6% against
     8.8-10.0% of train starts with all five terms above 0.1 (four checkpoints each; docs/executor.md).
     `--task.executor.ankle-armature 0.01 --task.executor.arm-armature 0.01` restores the old body.
+    The "pd" variant starts half its episodes on the tracked frame with the rule from the first
+    step, as the evaluation does, and the other half reactively (`on_frame_share`; since
+    2026-12-05, session 42): two arms from one checkpoint at 9.6 M steps, trained side by side to
+    12.3 M, tracked 24.4-25.0% against 20.6-22.5% of train starts and 6.2% against 3.8-5.0% of
+    held-out starts (four checkpoints each), 2.3 points lower against a projectile every 20 steps
+    (`learner/pretrained/executor/ablation-mixed-starts/`). `--task.executor.on-frame-share 0` restores it.
     Variants for the ablations: "pd" (PD targets), "noterm" (the sum rule instead of per-term
     termination), "uniform" (uniform clip draws instead of the balancer), "norsis" (start on
     the tracked frame, no noise)."""
@@ -209,6 +215,7 @@ def _executor_preset(variant: str = "") -> RunConfig:
         reactive_init=variant != "norsis",
         clip_draws="uniform" if variant == "uniform" else "balancer",
         terminate_on=POSE_TERMS,
+        on_frame_share=0.5 if variant == "pd" else 0.0,
     )
     task = TaskConfig(name="executor", control_hz=60.0, sim_hz=240.0, episode_s=20.0,
                       body=BodyConfig(parameterization="height_thickness", vary_shape=False), executor=ex)

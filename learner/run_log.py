@@ -50,7 +50,8 @@ class RunLog:
         sampler = {k: v for k, v in metrics.items() if k.startswith("sampler/")}
         if sampler:
             keys = [k for k in ("sampler/buffer/generation", "sampler/mcmc/acceptance", "sampler/mcmc/refill_s",
-                                "sampler/vm/vbar", "sampler/vm/min", "sampler/vm/max", "sampler/draws/served") if k in sampler]
+                                "sampler/vm/vbar", "sampler/vm/min", "sampler/vm/max", "sampler/draws/served",
+                                "sampler/clips/tracked_pct", "sampler/clips/p_min", "sampler/clips/p_max") if k in sampler]
             self.line("           sampler " + " ".join(f"{k[8:]} {sampler[k]:.4g}" for k in keys))
 
     def close(self) -> None:

@@ -94,8 +94,14 @@ class SamplerHandle:
             log.warning("sampler %s failed (%s); continuing without it", what, exc)
             return default
 
-    def report_and_tick(self, params: np.ndarray, values: np.ndarray, iteration: int) -> dict[str, float]:
-        self._call("report", lambda: self.client.report(params, values), None)
+    def report_and_tick(self, params: np.ndarray, values: np.ndarray, iteration: int,
+                        clips: tuple[list[str], list[int], list[int]] = ([], [], [])) -> dict[str, float]:
+        """Report the value pairs and `clips` (the training segments per clip since the last call:
+        ids, segments, tracked; only clips the sampler draws are sent), then tick."""
+        known = {cid for cid, _ in self.clips}
+        keep = [i for i, cid in enumerate(clips[0]) if cid in known]
+        clips = tuple([part[i] for i in keep] for part in clips)
+        self._call("report", lambda: self.client.report(params, values, clips), None)
         stats = self._call("tick", lambda: self.client.tick(iteration), {})
         restarted = False
         if stats:  # no answer says nothing about a restart

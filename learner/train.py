@@ -186,7 +186,7 @@ def _iterate(run: Run, start_steps: int, start_time: float) -> dict[str, float] 
     run.transport.publish(learner.weights_msg())
     t2 = time.monotonic()
     params, values = learner.value_pairs(unrolls, cfg.value_pairs_per_iteration)
-    metrics.update(run.sampler.report_and_tick(params, values, learner.iteration))
+    metrics.update(run.sampler.report_and_tick(params, values, learner.iteration, learner.take_clip_segments()))
     if cfg.vm_plot_every and learner.iteration % cfg.vm_plot_every == 0:
         run.sampler.plot(run.run_dir / "sampler_vm.png")
     run.health.check()

@@ -76,6 +76,9 @@ class MotionBalancer:
         self.probabilities: np.ndarray = np.array([float(exact[c]) for c in ids])
         """`[n_clips]` float64, in `clip_ids` order."""
         self.probabilities /= self.probabilities.sum()  # exact in Fractions; renormalize float rounding
+        self.draw_probabilities: np.ndarray = self.probabilities.copy()
+        """What `draw` samples: `probabilities` times the factors of `set_factors` (adaptive clip
+        sampling, `sampler/clip_outcomes.py`), renormalized; equal to them until factors are set."""
 
     @classmethod
     def from_clips_json(cls, path: str | Path | None = None) -> "MotionBalancer":
@@ -93,9 +96,19 @@ class MotionBalancer:
             else:
                 self._walk(child, share, out)
 
+    def set_factors(self, factors: np.ndarray) -> None:
+        """Draw clip c with probability proportional to `probabilities[c] * factors[c]`
+        (`clip_ids` order; positive and finite)."""
+        f = np.asarray(factors, dtype=np.float64).reshape(-1)
+        if f.shape != self.probabilities.shape or not (np.isfinite(f).all() and (f > 0).all()):
+            raise ValueError(f"clip factors of shape {f.shape}; expected {self.probabilities.shape}, positive and finite")
+        p = self.probabilities * f
+        self.draw_probabilities = p / p.sum()
+
     def draw(self, rng: np.random.Generator, n: int) -> list[str]:
-        """`n` clip ids drawn independently from the balanced distribution."""
-        idx = rng.choice(len(self.clip_ids), size=n, p=self.probabilities)
+        """`n` clip ids drawn independently from `draw_probabilities` (the balanced distribution,
+        reweighted by `set_factors` if it was called)."""
+        idx = rng.choice(len(self.clip_ids), size=n, p=self.draw_probabilities)
         return [self.clip_ids[i] for i in idx]
 
     def table(self) -> str:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import secrets
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -48,8 +48,11 @@ class SamplerClient:
         return Draws(params=np.array(reply.params), clip_ids=list(reply.clip_ids),
                      buffer_generation=int(reply.buffer_generation))
 
-    def report(self, params: np.ndarray, values: np.ndarray) -> None:
-        """Send (s_b `[m, d]`, V(s) `[m]`) pairs for the marginal value fit.
+    def report(self, params: np.ndarray, values: np.ndarray,
+               clips: tuple[Sequence[str], Sequence[int], Sequence[int]] = ((), (), ())) -> None:
+        """Send (s_b `[m, d]`, V(s) `[m]`) pairs for the marginal value fit, and `clips`: the
+        training segments per clip since the last report, (ids, segments, tracked), for adaptive
+        clip sampling.
 
         Idempotent: the report carries an id unique to this call (this client's random nonce
         and a counter), and every retry of the call resends it, so the service stores the pairs
@@ -57,7 +60,9 @@ class SamplerClient:
         self._reports += 1
         msg = wire.ValueReportMsg(params=np.asarray(params, dtype=np.float32),
                                   values=np.asarray(values, dtype=np.float32).reshape(-1),
-                                  report_id=f"{self._nonce}-{self._reports}")
+                                  report_id=f"{self._nonce}-{self._reports}",
+                                  clip_ids=[str(c) for c in clips[0]], clip_segments=[int(n) for n in clips[1]],
+                                  clip_tracked=[int(t) for t in clips[2]])
         self.rpc.call(msg, wire.OkMsg)
 
     def tick(self, iteration: int) -> dict[str, float]:

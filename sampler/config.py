@@ -28,6 +28,13 @@ class SamplerConfig:
     """MH steps per chain discarded before the first kept sample."""
     thin: int = 4
     """Keep every `thin`-th MH step of each chain after burn-in (reduces autocorrelation)."""
+    clip_k: float = 0.0
+    """Adaptive clip sampling (`sampler/clip_outcomes.py`): the motion balancer's probability of
+    each clip times exp(-clip_k r), r the share of its recent training segments tracked to its
+    end; 0 = UniCon's balancer alone."""
+    clip_memory: float = 0.95
+    """Per tick, the weight the clip counts so far keep against the new ones (0.95: about the last
+    20 iterations count)."""
     vbar_floor: float = 1e-3
     """Smallest |Vbar| used as the density's temperature: guards the division early in training."""
     vm_hidden: tuple[int, ...] = (64, 64)
@@ -61,7 +68,7 @@ class SamplerConfig:
 
     FLAG_PREFIX: ClassVar[str] = "sampler"
     LIMITS: ClassVar[dict[str, Limit]] = {
-        "k": at_least(0, False), "p_mcmc": at_least(1), "n_mcmc": at_least(1), "n_chains": at_least(1), "burn_in": at_least(0),
+        "k": at_least(0, False), "clip_k": between(0, 50), "clip_memory": between(0, 1, hi_open=True), "p_mcmc": at_least(1), "n_mcmc": at_least(1), "n_chains": at_least(1), "burn_in": at_least(0),
         "thin": at_least(1), "vbar_floor": above(0), "vm_hidden": at_least(1), "vm_lr": above(0),
         "vbar_rate": between(0, 1, lo_open=True), "vm_fit_steps": at_least(0), "vm_minibatch": at_least(1),
         "max_pending_pairs": at_least(1), "max_draw": at_least(1), "probe_points": at_least(1), "seed": at_least(0),

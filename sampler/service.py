@@ -2,8 +2,9 @@
 
 Requests and their replies (messages of `common.wire`):
     DrawRequestMsg   -> DrawReplyMsg     n draws from the buffer (+ clip ids)
-    ValueReportMsg   -> OkMsg            (params, V) pairs for the next Vm fit; a resend with the
-                                         same `report_id` is stored once (`reports/duplicates`)
+    ValueReportMsg   -> OkMsg            (params, V) pairs for the next Vm fit and training segments
+                                         per clip; a resend with the same `report_id` is stored once
+                                         (`reports/duplicates`)
     TickMsg          -> StatsReplyMsg    fit Vm, maybe refill; stats after the tick (a repeated
                                          iteration refits nothing and refills at most once)
     StatsRequestMsg  -> StatsReplyMsg
@@ -140,7 +141,9 @@ class SamplerService:
                 # A retry whose first try was stored (the reply was lost): idempotent, like a tick.
                 self.duplicate_reports += 1
                 return wire.OkMsg(info=f"report {msg.report_id} already stored ({self.reports[msg.report_id]} pairs)")
+            s.check_clip_report(msg.clip_ids, msg.clip_segments, msg.clip_tracked)  # before anything is stored
             m = s.report(msg.params, msg.values)
+            s.report_clips(msg.clip_ids, msg.clip_segments, msg.clip_tracked)
             if msg.report_id:
                 self.reports[msg.report_id] = m
                 while len(self.reports) > REPORT_IDS_KEPT:

@@ -10,6 +10,9 @@ Algorithm 1 mapped onto the calls:
     lines 15-16  report(params, values): pairs (s_b, V(s)) stored until the next tick (buffer D)
     lines 24-26  tick(i) fits Vm and Vbar on the stored pairs, then clears them (line 27)
 
+Clips: `report_clips` adds the training segments' outcomes per clip and each tick reweights the
+motion balancer by them (adaptive clip sampling, `sampler/clip_outcomes.py`; off for clip_k = 0).
+
 A tick is idempotent for a repeated iteration number (a client's retry after a lost reply): the
 pairs are already consumed and the refill is keyed on the iteration, not on the tick count.
 """
@@ -26,6 +29,7 @@ import torch
 from common import device as devices
 from common.params import ParamError, ParamSpace
 from sampler.balancer import MotionBalancer
+from sampler.clip_outcomes import ClipOutcomes
 from sampler.config import SamplerConfig
 from sampler.marginal_value import MarginalValue
 from sampler.mcmc import metropolis_hastings
@@ -44,6 +48,8 @@ class ShapeSampler:
         self.vm = MarginalValue(space.low_array, space.high_array, config.vm_hidden, config.vm_lr,
                                 config.vbar_rate, config.seed, config.probe_points, devices.resolve(config.device))
         self.balancer = MotionBalancer(clips) if clips else None
+        self.clip_outcomes = (ClipOutcomes(self.balancer.clip_ids, config.clip_k, config.clip_memory)
+                              if self.balancer else None)
         self._pending_params: list[np.ndarray] = []
         self._pending_values: list[np.ndarray] = []
         self.generation = 0
@@ -96,6 +102,21 @@ class ShapeSampler:
         self._trim_pending()
         return params.shape[0]
 
+    def check_clip_report(self, clip_ids: Sequence[str], segments: Sequence[int], tracked: Sequence[int]) -> None:
+        """ValueError if `report_clips` would refuse these counts (nothing is stored here)."""
+        if self.clip_outcomes is None:
+            if len(clip_ids):
+                raise ValueError(f"clip outcomes for {list(clip_ids)[:3]}: this sampler draws no clips")
+            return
+        self.clip_outcomes.check(clip_ids, segments, tracked)
+
+    def report_clips(self, clip_ids: Sequence[str], segments: Sequence[int], tracked: Sequence[int]) -> int:
+        """Training segments per clip and how many were tracked to the clip's end, for the next
+        tick's reweighting; returns the segments added. ValueError naming a clip this sampler does
+        not draw or counts that do not add up (nothing stored); a sampler without clips takes none."""
+        self.check_clip_report(clip_ids, segments, tracked)
+        return self.clip_outcomes.report(clip_ids, segments, tracked) if self.clip_outcomes is not None else 0
+
     def _trim_pending(self) -> None:
         """Keep only the newest `max_pending_pairs` pairs (bounded memory if ticks stop coming)."""
         total = sum(len(v) for v in self._pending_values)
@@ -123,6 +144,10 @@ class ShapeSampler:
             self.fit_s = time.perf_counter() - t0
             self._pending_params.clear()
             self._pending_values.clear()
+        if self.clip_outcomes is not None:
+            self.clip_outcomes.update()
+            if self.clip_outcomes.k > 0:
+                self.balancer.set_factors(self.clip_outcomes.factors())
         if iteration < self.last_refill_iteration:  # the learner went back (resumed without our state)
             self.last_refill_iteration = iteration
         if iteration - self.last_refill_iteration >= self.config.p_mcmc:
@@ -161,7 +186,10 @@ class ShapeSampler:
         vm/pairs_seen, vm/pending_pairs
         mcmc/acceptance, mcmc/refill_s   last refill's MH acceptance rate and wall time (s)
         draws/served, iteration
-        clips/count, clips/p_min, clips/p_max   balancer probabilities (when clips are used)
+        clips/count, clips/p_min, clips/p_max   draw probabilities (when clips are used)
+        clips/segments_seen, clips/tracked_pct, clips/rate_min, clips/rate_max
+                                     training segments reported, the recent share tracked to the
+                                     clip's end (all clips), its lowest and highest clip (r_c)
         """
         out: dict[str, float] = {"iteration": float(self.last_tick), "buffer/generation": float(self.generation)}
         mean, std = self.buffer.mean(axis=0), self.buffer.std(axis=0)
@@ -178,8 +206,9 @@ class ShapeSampler:
             "draws/served": float(self.draws_served),
         })
         if self.balancer is not None:
-            p = self.balancer.probabilities
+            p = self.balancer.draw_probabilities
             out.update({"clips/count": float(len(p)), "clips/p_min": float(p.min()), "clips/p_max": float(p.max())})
+            out.update(self.clip_outcomes.stats())
         return out
 
     def state_dict(self) -> dict[str, Any]:
@@ -199,6 +228,9 @@ class ShapeSampler:
         arrays = {"buffer": self.buffer.copy(), "order": self._order.astype(np.int64),
                   "pending_params": pending_p, "pending_values": pending_v}
         arrays.update({f"vm/{k}": v for k, v in vm_arrays.items()})
+        if self.clip_outcomes is not None:
+            meta["clips"], clip_arrays = self.clip_outcomes.state()
+            arrays.update(clip_arrays)
         return {"meta": meta, "arrays": arrays}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -228,6 +260,10 @@ class ShapeSampler:
         self.fit_s = float(meta["fit_s"])
         self.rng = np.random.default_rng()
         self.rng.bit_generator.state = json.loads(meta["rng"])
+        if self.clip_outcomes is not None:  # a state from before adaptive clip sampling has none: every clip unseen
+            self.clip_outcomes.load_state(meta.get("clips"), arrays)
+            if self.clip_outcomes.k > 0:
+                self.balancer.set_factors(self.clip_outcomes.factors())
         if box_changed:
             self.refill()
             self.last_refill_iteration = self.last_tick

@@ -65,6 +65,8 @@ PROJECTILE = {"mass_kg": 2.0, "radius_m": 0.08}
 PROJECTILES = 24
 """Balls in a scene built with `ExecutorConfig.projectile`, thrown in turn, so one can be thrown
 every control step although each flies for about 12 steps (2 m at 10 m/s, 60 Hz)."""
+MAX_UNDRAINED_SEGMENTS = 4096
+"""Clip segments an environment keeps for `drain_segments`; older ones are dropped when nobody drains."""
 PROJECTILE_LIFE_STEPS = 60
 """A thrown ball is parked again this many control steps (1 s) after its throw."""
 PARKED = np.array([0.0, 0.0, -50.0])
@@ -217,6 +219,8 @@ class ExecutorEnv:
     def __init__(self, cfg: TaskConfig, seed: int = 0):
         self.cfg, self.ex = cfg, cfg.executor
         self.rng = np.random.default_rng(seed)
+        self._segments: list[tuple[str, bool]] = []  # ended clip segments not yet drained
+        self._segment_clip = ""
         self.space = self.param_space(cfg)
         self.dt = 1.0 / cfg.control_hz
         ch = load_character(CHARACTER, timestep_s=1.0 / cfg.sim_hz)
@@ -343,29 +347,35 @@ class ExecutorEnv:
     def reset(self, seed: int | None, params: np.ndarray, clip_id: str | None = None, start_s: float | None = None,
               ) -> tuple[np.ndarray, dict]:
         """Start an episode on `clip_id` (a balanced draw when None) at `start_s` (random when
-        None); reactive initialization places the character off the tracked frame."""
+        None); reactive initialization places the character off the tracked frame, except on the
+        `on_frame_share` of starts that begin on it with the rule from the first step."""
         if seed is not None:
             self.rng = np.random.default_rng(seed)
         self.params = self.space.validate(params).astype(np.float64)
         self.scheduler.begin(self.rng, clip_id or None, start_s)
+        # Drawn only when some starts are on the frame: with none, the episode's draws are unchanged.
+        on_frame = self.ex.on_frame_share > 0 and self.rng.random() < self.ex.on_frame_share
+        reactive = self.ex.reactive_init and not on_frame
         offset = 0
-        if self.ex.reactive_init:
+        if reactive:
             lo, hi = self.ex.rsis_frames
             offset = int(self.rng.integers(lo, hi + 1)) * (1 if self.rng.random() < 0.5 else -1)
         start = self.scheduler.frame(offset)
         mujoco.mj_resetData(self.model, self.data)  # NOTE: a new MjData per episode cost 0.6 ms; this is the same state
         self.data.qpos[: self.nq] = start.qpos
         self.data.qvel[: self.nv] = start.qvel
-        if self.ex.reactive_init:
+        if reactive:
             r, a = self.ex.rsis_translation_m * math.sqrt(self.rng.random()), self.rng.uniform(0, 2 * math.pi)
             self.data.qpos[0:2] += r * np.array([math.cos(a), math.sin(a)])
             self.data.qvel[: self.nv] += self.rng.normal(0.0, self.ex.rsis_velocity_std, self.nv)
         self._park_projectile()
         lift_out_of_floor(self.model, self.data)
         self.k = 0
-        self.grace = self.ex.catch_up_steps
+        self.grace = 0 if on_frame else self.ex.catch_up_steps
         self.last_terms: dict[str, float] = {}
-        return self._observe(self._actual_kin()), {"clip_id": getattr(self.scheduler, "clip_id", ""), "rsis_offset": offset}
+        self._segment_clip = getattr(self.scheduler, "clip_id", "")
+        return self._observe(self._actual_kin()), {"clip_id": getattr(self.scheduler, "clip_id", ""), "rsis_offset": offset,
+                                                   "on_frame": on_frame}
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
         a = np.asarray(action, dtype=np.float64)
@@ -381,10 +391,13 @@ class ExecutorEnv:
         if self.balls:
             self._expire_projectiles()
         if diverged:
+            self._end_segment(False)
             return np.zeros(self.obs_dim, np.float32), 0.0, True, False, {"diverged": True, "ended_by": "divergence"}
         rescheduled = self.scheduler.advance(self.rng, self.qpos.copy())
         if rescheduled:
             self.grace = self.k + self.ex.catch_up_steps
+            self._end_segment(True)
+            self._segment_clip = getattr(self.scheduler, "clip_id", "")
         actual = self._actual_kin()
         target_frame = self.scheduler.frame(0)
         target = self._target_kin(target_frame)
@@ -397,9 +410,26 @@ class ExecutorEnv:
             self.grace = self.k  # caught up: the rule applies from the next step
         terminated = ended_by is not None and self.k > self.grace
         truncated = not terminated and (self.k >= self.cfg.episode_steps or self.scheduler.done)
+        if terminated or (truncated and self.scheduler.done):  # a time limit says nothing of the clip
+            self._end_segment(not terminated)
         info = {"diverged": False, "terms": terms, "ended_by": ended_by if terminated else None,
                 "rescheduled": rescheduled, **pos_err, **self.scheduler.status()}
         return self._observe(actual), reward, terminated, truncated, info
+
+    def _end_segment(self, tracked: bool) -> None:
+        if self._segment_clip:
+            if len(self._segments) >= MAX_UNDRAINED_SEGMENTS:  # nobody drains them (evaluation, play)
+                del self._segments[0]
+            self._segments.append((self._segment_clip, tracked))
+            self._segment_clip = ""
+
+    def drain_segments(self) -> list[tuple[str, bool]]:
+        """The clip segments ended since the last call, (clip id, tracked to the clip's end),
+        for adaptive clip sampling (`sampler/clip_outcomes.py`): a segment runs from a start or
+        a reschedule to the clip's end, or to the termination (or divergence) that cut it; an
+        episode cut by its time limit leaves its segment uncounted."""
+        out, self._segments = self._segments, []
+        return out
 
     def pd_target(self, frame: TargetFrame) -> np.ndarray:
         """The PD targets `[nu]` of a zero action (`pd_target`)."""

@@ -32,12 +32,15 @@ def settings(cfg) -> str:
     words = [
         ex.actuation,
         {"per_term": "per-term", "sum": "sum rule", "none": "no termination"}.get(ex.termination, ex.termination),
-        "balancer" if ex.clip_draws == "balancer" else "uniform draws",
+        ("balancer" if ex.clip_draws == "balancer" else "uniform draws")
+        + (f" x exp(-{cfg.sampler.clip_k:g} r)" if cfg.sampler.clip_k else ""),
         "reactive init" if ex.reactive_init else "no reactive init",
     ]
     default = type(ex)()
     if ex.catch_up_steps != default.catch_up_steps:
         words.append(f"wait {ex.catch_up_steps} steps" if ex.catch_up_steps else "no wait")
+    if ex.on_frame_share:
+        words.append(f"{100 * ex.on_frame_share:g}% of starts on the frame")
     if ex.catch_up_ends == "on_track" and ex.catch_up_steps:
         words.append("wait ends on track")
     if (ex.ankle_armature, ex.arm_armature) != (default.ankle_armature, default.arm_armature):
@@ -60,9 +63,9 @@ def evaluate_arm(ckpt: str, out: Path, folder: str, p: argparse.ArgumentParser, 
         if (m.get("checkpoint") == str(loaded.path) and m.get("starts") == args.starts
                 and m.get("clips") == [c.clip_id for c in clips]):
             print(f"[ablation] reusing {res_file}", flush=True)
-            return {"loaded": loaded, **old}
+            return {"loaded": loaded, "folder": folder, **old}
     result = executor_report.evaluate_checkpoint(loaded, clips, args.starts, args.workers, target, log="ablation")
-    return {"loaded": loaded, **result}
+    return {"loaded": loaded, "folder": folder, **result}
 
 
 def _pct(summary: dict, split: str) -> str:
@@ -82,7 +85,7 @@ def table(rows: list[dict]) -> str:
         o = s["overall"]
         mpjpe = "-" if o["mpjpe_mm"] is None else f"{o['mpjpe_mm']:.1f}"
         rps = "-" if o["reward_per_step"] is None else f"{o['reward_per_step']:.3f}"
-        lines.append(f"| `{m['name']}` | {settings(r['loaded'].cfg)} | {m['env_steps']:,d} | {_pct(s, 'train')} "
+        lines.append(f"| `{r.get('folder', m['name'])}` | {settings(r['loaded'].cfg)} | {m['env_steps']:,d} | {_pct(s, 'train')} "
                      f"| {_pct(s, 'test')} | {o['phc_success_pct']:.1f} | {mpjpe} | {rps} |")
     return "\n".join(lines)
 

@@ -213,7 +213,7 @@ def eval_task(cfg: TaskConfig, perturbation: Perturbation = Perturbation()) -> T
     image trackable, a stopping scheduler, no reactive initialization, termination off (read off
     the trajectory instead), a time limit no clip reaches; the row's playback speed and projectile body."""
     ex = dataclasses.replace(cfg.executor, clips=(), split="all", mirror=True, at_clip_end="stop", reactive_init=False,
-                             catch_up_steps=0, termination="none", speed=perturbation.speed,
+                             on_frame_share=0.0, catch_up_steps=0, termination="none", speed=perturbation.speed,
                              projectile=perturbation.projectile_every > 0)
     return dataclasses.replace(cfg, episode_s=EVAL_EPISODE_S, executor=ex)
 

@@ -85,7 +85,8 @@ def describe(cfg) -> str:
 
     watch = {TERMS: "", POSE_TERMS: " on the pose terms"}.get(tuple(ex.terminate_on), f" on {', '.join(ex.terminate_on)}")
     return (f"{ex.actuation}, {'per-term' if ex.termination == 'per_term' else ex.termination} termination"
-            f"{watch if ex.termination == 'per_term' else ''} (alpha {ex.alpha:g}), {ex.clip_draws} clip draws, {'reactive init' if ex.reactive_init else 'no reactive init'}, "
+            f"{watch if ex.termination == 'per_term' else ''} (alpha {ex.alpha:g}), {ex.clip_draws} clip draws{f' (adaptive, clip-k {cfg.sampler.clip_k:g})' if cfg.sampler.clip_k else ''}, {'reactive init' if ex.reactive_init else 'no reactive init'}"
+            f"{f' ({100 * ex.on_frame_share:g}% of starts on the frame)' if ex.on_frame_share else ''}, "
             f"tau {ex.tau}, {clips}")
 
 

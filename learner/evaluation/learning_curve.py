@@ -1,18 +1,21 @@
-"""The learning curve of a run (issue 6 item 7): fall-down % and task achievement of every
-checkpoint on the same random shapes, against environment steps and wall time.
+"""The learning curve of a run (issue 6 item 7, issue 20): every checkpoint evaluated the same
+way, against environment steps and wall time. A shape controller's run: fall-down % and task
+achievement on the same random shapes. A motion executor's run: UniCon's success % per split
+(train, held-out test), as `morphmimic evaluate` measures it (`executor_curve.py`).
 
-    python -m learner.evaluation.learning_curve --ckpt-dir runs/history/lower_biped/ckpt --shapes 100 --episode-s 10
+    morphmimic learning-curve --ckpt-dir runs/history/lower_biped/ckpt --shapes 100 --episode-s 10
+    morphmimic learning-curve --ckpt-dir runs/executor-pd-arm/ckpt --starts 10 --every 10 --workers 2
 
 Wall time of a checkpoint: the training seconds it records (summed over every session of a
 resumed run, so pauses between sessions do not count). Checkpoints written before that was
 recorded fall back to the file's modification time minus `--start` (default: the modification
 time of the run's `config.json`, written when training starts; pass the run directory with
-`--run-dir`). Writes `curve.json` and `curve.png` into `--out` and prints a table with the
-first checkpoint below `--target` fall-down %. Rows of an earlier `curve.json` in `--out` made
-with the same shapes, episode length, seed and box are reused, so a growing run is evaluated only
-on its new checkpoints, and kept when their checkpoints are gone (a run keeps only its newest
-`keep_checkpoints`): the curve is the run's history. An earlier curve made with other settings is
-refused, not overwritten.
+`--run-dir`). Writes `curve.json` (after every checkpoint) and `curve.png` into `--out` and
+prints where the run first reached `--target`. Rows of an earlier `curve.json` in `--out` made
+the same way (shapes, episode length, seed and box; an executor's clips and starts) are reused,
+so a growing run is evaluated only on its new checkpoints, and kept when their checkpoints are
+gone (a run keeps only its newest `keep_checkpoints`): the curve is the run's history. An
+earlier curve made with other settings is refused, not overwritten.
 """
 
 from __future__ import annotations
@@ -28,68 +31,112 @@ import numpy as np  # noqa: E402
 
 from learner import checkpoint
 
-from learner.evaluation import cli_args, eval_core  # noqa: E402
+from learner.evaluation import cli_args, eval_core, executor_curve  # noqa: E402
 
 
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog="python -m learner.evaluation.learning_curve", description=__doc__,
+    p = argparse.ArgumentParser(prog="morphmimic learning-curve", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--ckpt-dir", required=True, help="directory of <iteration>/state.pt checkpoints")
     p.add_argument("--run-dir", default="", help="the run directory (its config.json time is the start)")
     p.add_argument("--start", type=float, default=0.0, help="training start, Unix time (overrides --run-dir)")
-    p.add_argument("--shapes", type=cli_args.positive_int, default=100)
-    p.add_argument("--episode-s", type=cli_args.positive_float, default=10.0)
+    p.add_argument("--shapes", type=cli_args.positive_int, default=None, help="shape controllers: random shapes (default 100)")
+    p.add_argument("--episode-s", type=cli_args.positive_float, default=None,
+                   help="shape controllers: episode length, s (default 10)")
     p.add_argument("--seed", type=cli_args.seed, default=2019)
-    p.add_argument("--box-scale", type=cli_args.box_scale, default=1.0,
-                   help="shapes from the box shrunk toward the base shape (a curriculum's progress); 1: the whole box")
+    p.add_argument("--box-scale", type=cli_args.box_scale, default=None,
+                   help="shape controllers: shapes from the box shrunk toward the base shape (a curriculum's progress; "
+                        "default 1: the whole box)")
+    p.add_argument("--starts", type=cli_args.positive_int, default=None,
+                   help="executor: start frames per clip, as `morphmimic evaluate --starts` (default 10)")
     p.add_argument("--every", type=cli_args.positive_int, default=1, help="evaluate every n-th checkpoint (the last always)")
     p.add_argument("--workers", type=cli_args.positive_int, default=1)
-    p.add_argument("--target", type=cli_args.percent, default=20.0, help="fall-down %% to report reaching")
+    p.add_argument("--target", type=cli_args.percent, default=None,
+                   help="report reaching this: fall-down %% at most (shape controllers, default 20) or train "
+                        "success %% at least (executor, default 90)")
     p.add_argument("--out", default="", help="output directory (default: <ckpt-dir>/../curve)")
     args = p.parse_args(argv)
     ckpts = checkpoint.list_checkpoints(Path(args.ckpt_dir))
     if not ckpts:
         raise SystemExit(f"--ckpt-dir {args.ckpt_dir}: no checkpoints")
+    newest = eval_core.load(ckpts[-1])  # the run's task decides which curve
+    executor = newest.cfg.task.name == "executor"
+    kind_flags = {"--shapes": args.shapes, "--episode-s": args.episode_s, "--box-scale": args.box_scale}
+    if executor:
+        misplaced = [flag for flag, value in kind_flags.items() if value is not None]
+        if misplaced:
+            p.error(f"{', '.join(misplaced)}: options of a shape controller's curve; {newest.name} is an executor "
+                    "run (its curve takes --starts)")
+        args.starts = args.starts or 10
+        args.target = executor_curve.DEFAULT_TARGET if args.target is None else args.target
+        proto = executor_curve.protocol(newest, args.starts)
+    else:
+        if args.starts is not None:
+            p.error(f"--starts: an option of an executor's curve; {newest.name} is a {newest.cfg.task.name} run "
+                    "(its curve takes --shapes, --episode-s, --box-scale)")
+        args.shapes, args.episode_s = args.shapes or 100, args.episode_s or 10.0
+        args.box_scale = 1.0 if args.box_scale is None else args.box_scale
+        args.target = 20.0 if args.target is None else args.target
+        proto = {k: getattr(args, k) for k in PROTOCOL}
     ckpts = every_nth(ckpts, args.every)
     start = args.start or (os.path.getmtime(Path(args.run_dir) / "config.json") if args.run_dir else 0.0)
     out = Path(args.out) if args.out else Path(args.ckpt_dir).parent / "curve"
     out.mkdir(parents=True, exist_ok=True)
-    done, stale = _earlier_rows(out / "curve.json", args)
+    done, stale = _earlier_rows(out / "curve.json", proto, versioned=not executor)
     rows = dict(done)
     for it, row in stale.items():  # kept unless its checkpoint is measured again below
         rows[it] = {**row, "fall_down_pct_extreme10": None}
-    from common.tasks.registry import make_env
+    header = proto if executor else {**proto, "extreme": EXTREME}
 
     fallback_wall = _wall_from_file_times(checkpoint.list_checkpoints(Path(args.ckpt_dir)), start)
     for c in ckpts:
         if int(c.name) in done:  # checkpoint directories are named by iteration: skip without loading
             continue
         loaded = eval_core.load(c)
-        env = make_env(eval_core.eval_task(loaded.cfg.task, args.episode_s, args.box_scale), seed=0)
-        shapes = eval_core.eval_shapes(env.space, args.shapes, args.seed)
-        res = eval_core.evaluate(loaded, shapes, args.episode_s, args.seed, args.workers, box_scale=args.box_scale)
-        s = eval_core.summarize(res, env.space, getattr(env, "n_shape", env.space.dim))
+        if loaded.cfg.task.name != newest.cfg.task.name:
+            raise SystemExit(f"{loaded.path}: task {loaded.cfg.task.name!r}, but the newest checkpoint in --ckpt-dir "
+                             f"is {newest.cfg.task.name!r}: one curve is one run")
         wall = float(loaded.state.get("train_seconds", float("nan")))
         if not np.isfinite(wall):
             wall = fallback_wall.get(c, float("nan"))
         wall = wall if np.isfinite(wall) else None  # JSON null: unknown
-        row = {"iteration": int(loaded.state["iteration"]), "env_steps": int(loaded.state["env_steps"]), "wall_s": wall, **s}
+        figures = executor_curve.measure(loaded, args.starts, args.workers) if executor else _shape_figures(loaded, args)
+        row = {"iteration": int(loaded.state["iteration"]), "env_steps": int(loaded.state["env_steps"]), "wall_s": wall, **figures}
         rows[row["iteration"]] = row
-        print(f"[curve] it {row['iteration']:5d} steps {row['env_steps']:>10,d} wall {_minutes(wall)} min | "
-              f"fall-down {s['fall_down_pct']:5.1f}% task {s['task_achievement']:6.1f} length {s['mean_seconds']:5.2f} s",
-              flush=True)
-    rows = [rows[i] for i in sorted(rows)]
-    (out / "curve.json").write_text(json.dumps({"shapes": args.shapes, "episode_s": args.episode_s, "seed": args.seed,
-                                                "box_scale": args.box_scale, "extreme": EXTREME, "rows": rows},
-                                               indent=1) + "\n")
-    _plot(rows, out / "curve.png", args)
-    hit = next((r for r in rows if r["fall_down_pct"] <= args.target), None)
+        text = executor_curve.line(row) if executor else (
+            f"fall-down {row['fall_down_pct']:5.1f}% task {row['task_achievement']:6.1f} length {row['mean_seconds']:5.2f} s")
+        print(f"[curve] it {row['iteration']:5d} steps {row['env_steps']:>10,d} wall {_minutes(wall)} min | {text}", flush=True)
+        _write(out / "curve.json", header, rows)  # after every row: an interrupted curve keeps what it measured
+    _write(out / "curve.json", header, rows)
+    ordered = [rows[i] for i in sorted(rows)]
+    if executor:
+        executor_curve.plot(ordered, out / "curve.png", args.target, args.starts)
+        print(f"[curve] {executor_curve.reached(ordered, args.target)}")
+        return 0
+    _plot(ordered, out / "curve.png", args)
+    hit = next((r for r in ordered if r["fall_down_pct"] <= args.target), None)
     if hit:
         print(f"[curve] reached {args.target:g}% fall-down at {hit['env_steps']:,d} env steps, {_minutes(hit['wall_s'])} min")
     else:
-        best = min(rows, key=lambda r: r["fall_down_pct"])
+        best = min(ordered, key=lambda r: r["fall_down_pct"])
         print(f"[curve] never reached {args.target:g}%: best {best['fall_down_pct']:.1f}% at {best['env_steps']:,d} steps")
     return 0
+
+
+def _shape_figures(loaded: eval_core.Loaded, args: argparse.Namespace) -> dict:
+    """A shape controller's figures on the curve's random shapes (`eval_core.summarize`)."""
+    from common.tasks.registry import make_env
+
+    env = make_env(eval_core.eval_task(loaded.cfg.task, args.episode_s, args.box_scale), seed=0)
+    shapes = eval_core.eval_shapes(env.space, args.shapes, args.seed)
+    res = eval_core.evaluate(loaded, shapes, args.episode_s, args.seed, args.workers, box_scale=args.box_scale)
+    return eval_core.summarize(res, env.space, getattr(env, "n_shape", env.space.dim))
+
+
+def _write(path: Path, header: dict, rows: dict[int, dict]) -> None:
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps({**header, "rows": [rows[i] for i in sorted(rows)]}, indent=1) + "\n")
+    os.replace(tmp, path)
 
 
 def _wall_from_file_times(ckpts: list[Path], start: float) -> dict[Path, float]:
@@ -138,26 +185,33 @@ EXTREME = "base"
 PROTOCOL = ("shapes", "episode_s", "seed", "box_scale")
 
 
-def _earlier_rows(path: Path, args) -> tuple[dict[int, dict], dict[int, dict]]:
-    """Rows of an earlier curve.json in `--out`, iteration -> row: (current, stale). Stale rows
-    were measured before the extreme-10% ranking changed: their checkpoints are measured again,
-    and rows whose checkpoints are gone keep their fall-down % with no extreme-10% figure. A file
-    made with other shapes, episode length, seed or box is refused rather than overwritten: its
-    rows may be the only record of checkpoints the run has since deleted."""
+def _earlier_rows(path: Path, proto: dict, versioned: bool = True) -> tuple[dict[int, dict], dict[int, dict]]:
+    """Rows of an earlier curve.json in `--out`, iteration -> row: (current, stale). `proto`: the
+    fields this call's rows depend on (the shapes, episode length, seed and box; for an executor
+    the task, clips and starts). A file made with others is refused rather than overwritten: its
+    rows may be the only record of checkpoints the run has since deleted. `versioned` (shape
+    curves): rows measured before the extreme-10% ranking changed are stale: their checkpoints
+    are measured again, and rows whose checkpoints are gone keep their fall-down % with no
+    extreme-10% figure."""
     if not path.exists():
         return {}, {}
     try:
         earlier = json.loads(path.read_text())
-        earlier = {"box_scale": 1.0, **earlier}  # curves from before --box-scale used the whole box
+        earlier = {"box_scale": 1.0, **earlier} if "shapes" in earlier else earlier  # before --box-scale: the whole box
         rows = {int(r["iteration"]): r for r in earlier["rows"]}
-    except (ValueError, KeyError, TypeError) as exc:
+    except (ValueError, KeyError, TypeError, AttributeError) as exc:
         raise SystemExit(f"{path}: unreadable curve ({exc}); move it away or choose another --out") from None
-    differ = {k: (earlier.get(k), getattr(args, k)) for k in PROTOCOL if earlier.get(k) != getattr(args, k)}
+    differ = {k: (earlier.get(k), b) for k, b in proto.items() if earlier.get(k) != b}
     if differ:
-        raise SystemExit(f"{path} was made with " + ", ".join(f"{k} {a!r}" for k, (a, _) in differ.items())
-                         + "; this call asks for " + ", ".join(f"{k} {b!r}" for k, (_, b) in differ.items())
+        raise SystemExit(f"{path} was made with " + ", ".join(f"{k} {_short(a)}" for k, (a, _) in differ.items())
+                         + "; this call asks for " + ", ".join(f"{k} {_short(b)}" for k, (_, b) in differ.items())
                          + ": choose another --out (its rows are kept)")
-    return (rows, {}) if earlier.get("extreme") == EXTREME else ({}, rows)
+    return (rows, {}) if not versioned or earlier.get("extreme") == EXTREME else ({}, rows)
+
+
+def _short(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
 
 
 def _plot(rows: list[dict], path: Path, args) -> None:

@@ -24,6 +24,7 @@ def _unroll(T=4, N=3, obs_dim=5, act_dim=2, n_params=2) -> wire.UnrollMsg:
         terminated=rng.random((T, N)) < 0.2, truncated=rng.random((T, N)) < 0.2,
         params=rng.normal(size=(T, N, n_params)).astype(np.float32),
         episode_returns=[1.5, -2.0], episode_lengths=[10, 20], divergences=1, sampler_outages=2,
+        segment_clips=["walk", "run", "walk"], segment_tracked=[1, 0, 1],
     )
 
 
@@ -34,7 +35,8 @@ EXAMPLES = [
     wire.HeartbeatMsg(actor_id=2, seq=9, env_steps=100),
     wire.DrawRequestMsg(n=16, client_id=3),
     wire.DrawReplyMsg(params=np.zeros((2, 3), np.float32), clip_ids=["walk", "run"], buffer_generation=4),
-    wire.ValueReportMsg(params=np.zeros((5, 2), np.float32), values=np.arange(5, dtype=np.float32)),
+    wire.ValueReportMsg(params=np.zeros((5, 2), np.float32), values=np.arange(5, dtype=np.float32),
+                        clip_ids=["walk", "run"], clip_segments=[4, 2], clip_tracked=[3, 0]),
     wire.TickMsg(iteration=12),
     wire.StatsRequestMsg(),
     wire.StatsReplyMsg(stats={"vm/min": 1.0}),
@@ -195,6 +197,12 @@ HB = wire.HeartbeatMsg(actor_id=2, seq=9, env_steps=100)
          "bad_array"),
         (wire.DrawReplyMsg(params=np.zeros((2, 3), np.float32), clip_ids=["a", "b"]), _set_field("clip_ids", ["a"]),
          "bad_shape"),
+        (U, _set_field("segment_tracked", [1, 2, 0]), "out_of_range"),  # a segment is tracked or not
+        (U, _set_field("segment_tracked", [1, 0]), "bad_shape"),  # two outcomes for three segments
+        (U, _set_field("segment_clips", ["walk", 3, "run"]), "bad_type"),
+        (EXAMPLES[6], _set_field("clip_segments", [4, -1]), "out_of_range"),
+        (EXAMPLES[6], _set_field("clip_tracked", [3]), "bad_shape"),
+        (EXAMPLES[6], _set_field("clip_segments", [4, 2**40]), "out_of_range"),
     ],
 )
 def test_every_field_is_checked_against_its_declaration(msg, edit, kind):

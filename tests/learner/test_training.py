@@ -192,3 +192,30 @@ def test_bad_ppo_and_variance_options_name_the_value():
 
     with pytest.raises(ValueError, match=r"--task.body.shape-box-scale = 0.0 is not allowed: give a finite number in \(0, 1\]"):
         BodyConfig(shape_box_scale=0.0)
+
+
+def test_adaptive_clip_sampling_counts_the_executors_segments_end_to_end(tmp_path):
+    """`--sampler.clip-k`: the environments' clip segments travel in the unrolls to the learner,
+    with its value report to the sampler, and reweight the balancer; the counts are in the
+    checkpoint's sampler state and the draws a restored sampler makes follow them."""
+    from common.tasks.executor import labelled_clips
+    from sampler.shape_sampler import ShapeSampler, state_from_torch
+
+    base = PRESETS["executor-tiny"][1]
+    cfg = dataclasses.replace(base, runs_dir=str(tmp_path), quiet=True, mode="serial", max_iterations=3,
+                              total_env_steps=10**6, sampler=dataclasses.replace(base.sampler, clip_k=3.0))
+    assert train(cfg) == 0
+    state = checkpoint.load_latest(tmp_path / "executor-tiny" / "ckpt")[1]
+    sampler_state = state_from_torch(state["sampler"])
+    meta, arrays = sampler_state["meta"]["clips"], sampler_state["arrays"]
+    assert meta["seen"] > 0 and arrays["clips/segments"].sum() > 0
+    assert (arrays["clips/tracked"] <= arrays["clips/segments"]).all()
+    restored = ShapeSampler(cfg.sampler, make_env(cfg.task).space, labelled_clips(cfg.task))
+    restored.load_state_dict(sampler_state)
+    b = restored.balancer
+    assert not np.allclose(b.draw_probabilities, b.probabilities)  # reweighted by what was seen
+    rate = restored.clip_outcomes.tracked_rate
+    ratio = b.draw_probabilities / b.probabilities
+    assert np.argmax(ratio) == np.argmin(rate)  # the clip tracked least is favoured most
+    log = (tmp_path / "executor-tiny" / "log.txt").read_text()
+    assert "clips/tracked_pct" in log

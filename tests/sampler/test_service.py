@@ -234,3 +234,24 @@ def test_a_bad_state_is_refused_whole_and_changes_nothing(service):
         assert client.stats()["requests/rejected/invalid"] == len(bad_states)
     finally:
         client.close()
+
+
+def test_clip_outcomes_travel_with_the_value_report_and_a_bad_one_stores_nothing(service):
+    """Adaptive clip sampling over the socket: the report's per-clip segments reach the sampler
+    at the tick; a report naming a clip the sampler does not draw, or more tracked segments than
+    segments, is refused whole (its value pairs are not stored either) and serving goes on."""
+    client = SamplerClient(service.endpoint, timeout_s=5.0)
+    try:
+        d = client.draw(4)
+        with pytest.raises(wire.WireError, match="'no_such_clip': not a clip this sampler draws"):
+            client.report(d.params, np.ones(4), (["no_such_clip"], [3], [1]))
+        with pytest.raises(wire.WireError, match="5 tracked of 2 segments"):
+            client.report(d.params, np.ones(4), ([d.clip_ids[0]], [2], [5]))
+        assert client.stats()["vm/pending_pairs"] == 0
+        client.report(d.params, np.ones(4), ([d.clip_ids[0]], [4], [1]))
+        stats = client.tick(1)
+        assert stats["vm/pairs_seen"] == 4 and stats["clips/segments_seen"] == 4
+        assert stats["clips/tracked_pct"] == pytest.approx(25.0)
+        assert stats["requests/rejected/invalid"] == 2
+    finally:
+        client.close()

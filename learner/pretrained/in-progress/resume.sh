@@ -19,10 +19,10 @@ declare -A ARGS=(
   [manta-course]="learner.main --preset manta"
   [manta-nocourse]="learner.main --preset manta --task.imitate.no-observe-course"
   [executor-torque]="learner.main --preset executor"
-  [executor-pd-arm]="learner.main --preset executor-pd --ppo.gamma 0.99"
+  [xmix-50]="learner.main --preset executor-pd --ppo.gamma 0.99"
 )
-ORDER=(executor-pd-arm executor-torque manta-course)  # what to resume first
-FRESH=(manta-course executor-pd-arm)
+ORDER=(xmix-50 executor-torque manta-course)  # what to resume first
+FRESH=(manta-course)
 # FORK: a run that starts from a shared checkpoint, when it has none of its own (the rotor-inertia
 # arms xank-* forked the shipped executor, 2026-12-05, the lower biped's ablation arms lbabl-fork).
 declare -A FORK=()

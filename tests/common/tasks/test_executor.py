@@ -155,6 +155,34 @@ def test_reactive_initialization_within_bounds():
     np.testing.assert_allclose(plain.data.qvel, frame.qvel, atol=1e-12)
 
 
+def test_a_share_of_starts_on_the_tracked_frame_without_the_wait():
+    """`on_frame_share`: that share of starts begins on the tracked frame exactly with the rule
+    from the first step; the others are reactive starts with the wait. With share 0 the episode's
+    random draws are those of a config without the field (same clip, frame and offset)."""
+    env = make_env(cfg_with(on_frame_share=0.5), seed=0)
+    on = 0
+    for seed in range(40):
+        _, info = env.reset(seed, env.space.default_array)
+        if info["on_frame"]:
+            on += 1
+            assert info["rsis_offset"] == 0 and env.grace == 0
+            frame = env.scheduler.frame(0)
+            np.testing.assert_allclose(env.data.qpos[3:], frame.qpos[3:], atol=1e-12)
+            np.testing.assert_allclose(env.data.qvel, frame.qvel, atol=1e-12)
+        else:
+            assert 5 <= abs(info["rsis_offset"]) <= 10 and env.grace == 30
+    assert 10 <= on <= 30
+    every = make_env(cfg_with(on_frame_share=1.0), seed=0)
+    assert all(every.reset(seed, every.space.default_array)[1]["on_frame"] for seed in range(10))
+    a, b = make_env(cfg_with(on_frame_share=0.0), seed=0), make_env(CFG, seed=0)
+    for seed in range(5):
+        ia, ib = a.reset(seed, a.space.default_array)[1], b.reset(seed, b.space.default_array)[1]
+        assert not ia["on_frame"] and ia == ib
+        np.testing.assert_array_equal(a.data.qvel, b.data.qvel)
+    with pytest.raises(ValueError, match="on-frame-share"):
+        cfg_with(on_frame_share=1.5).executor.validate()
+
+
 def test_reactive_translation_noise_is_bounded():
     env = make_env(cfg_with(rsis_frames=(0, 0), rsis_velocity_std=0.0, rsis_translation_m=0.1), seed=0)
     for seed in range(20):
@@ -364,6 +392,26 @@ def test_dataset_scheduler_reschedules_at_the_clip_end(env):
     assert jumped and s.reschedules == before + 1
     # the new clip starts under the character: same horizontal position
     np.testing.assert_allclose(s.frame(0).qpos[0:2], qpos[0:2], atol=1e-9)
+
+
+def test_clip_segments_end_tracked_at_a_reschedule_and_not_at_a_termination():
+    """`drain_segments` (adaptive clip sampling): a start near a clip's end reaches it inside the
+    wait, a tracked segment; the next clip's ragdoll then breaks a term, an untracked one."""
+    env = make_env(cfg_with(reactive_init=False, catch_up_steps=20, actuation="torque"), seed=0)
+    env.reset(0, env.space.default_array, clip_id="humanoid3d_walk")
+    first = env.scheduler.clip_id
+    duration = env.scheduler.status()["clip_duration_s"]
+    env.reset(0, env.space.default_array, clip_id=first, start_s=duration - 5 * env.dt)
+    assert env.drain_segments() == []  # a reset before anything ended counts nothing
+    for _ in range(200):
+        _, _, term, trunc, info = env.step(np.zeros(env.act_dim))
+        if term or trunc:
+            break
+    assert term
+    segments = env.drain_segments()
+    assert segments[0] == (first, True) and segments[-1] == (env.scheduler.clip_id, False), segments
+    assert all(tracked for _, tracked in segments[:-1])
+    assert env.drain_segments() == []
 
 
 def test_config_rejects_bad_values():

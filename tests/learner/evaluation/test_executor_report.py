@@ -203,6 +203,23 @@ def test_executor_ablation_table_has_one_row_per_arm(tmp_path: Path, capsys) -> 
     assert capsys.readouterr().out.count("[ablation] reusing") == 2  # same checkpoints, clips and starts
 
 
+def test_executor_ablation_names_two_checkpoints_of_one_run_by_iteration(tmp_path: Path) -> None:
+    """Two checkpoints of one run are two rows told apart by their iteration (as their folders),
+    and a share of starts on the frame is named in the settings."""
+    from learner import checkpoint
+    from learner.evaluation import ablation, eval_core
+
+    run = tiny_executor(tmp_path, "mixed", on_frame_share=0.5)
+    state = dict(eval_core.load(run).state, iteration=5, env_steps=5120)
+    checkpoint.save(run / "ckpt", 5, state, keep=5)
+    out = tmp_path / "abl"
+    assert ablation.main(["--checkpoints", str(run / "ckpt" / "00000000"), str(run / "ckpt" / "00000005"),
+                          "--clips", "humanoid3d_walk", "--starts", "1", "--out", str(out)]) == 0
+    text = (out / "ablation.md").read_text()
+    assert "| `mixed-0` | torque · per-term · balancer · reactive init · 50% of starts on the frame | 0 |" in text
+    assert "| `mixed-5` |" in text and "| 5,120 |" in text
+
+
 def test_ablation_refuses_to_mix_executor_and_shape_checkpoints(tmp_path: Path, capsys) -> None:
     from learner.evaluation import ablation
     from tests.learner.evaluation.test_evaluate import _tiny_checkpoint

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 
@@ -48,13 +47,13 @@ def test_earlier_rows_are_reused_only_for_the_same_protocol_and_another_is_refus
     path = tmp_path / "curve.json"
     rows = [{"iteration": 10, "fall_down_pct": 90.0}]
     path.write_text(json.dumps({"shapes": 100, "episode_s": 10.0, "seed": 2019, "extreme": "base", "rows": rows}))
-    same = argparse.Namespace(shapes=100, episode_s=10.0, seed=2019, box_scale=1.0)
+    same = dict(shapes=100, episode_s=10.0, seed=2019, box_scale=1.0)
     assert _earlier_rows(path, same) == ({10: rows[0]}, {})  # a curve.json from before --box-scale: the whole box
     before = path.read_text()
     with pytest.raises(SystemExit, match=r"shapes 100.*asks for shapes 300.*another --out"):
-        _earlier_rows(path, argparse.Namespace(shapes=300, episode_s=10.0, seed=2019, box_scale=1.0))
+        _earlier_rows(path, dict(shapes=300, episode_s=10.0, seed=2019, box_scale=1.0))
     with pytest.raises(SystemExit, match=r"box_scale 1\.0.*asks for box_scale 0\.5"):
-        _earlier_rows(path, argparse.Namespace(shapes=100, episode_s=10.0, seed=2019, box_scale=0.5))
+        _earlier_rows(path, dict(shapes=100, episode_s=10.0, seed=2019, box_scale=0.5))
     assert path.read_text() == before
     path.write_text("{not json")
     with pytest.raises(SystemExit, match="unreadable curve"):
@@ -67,7 +66,7 @@ def test_rows_from_before_the_extreme_ranking_changed_are_stale(tmp_path):
     path = tmp_path / "curve.json"
     rows = [{"iteration": 10, "fall_down_pct": 90.0, "fall_down_pct_extreme10": 95.0}]
     path.write_text(json.dumps({"shapes": 100, "episode_s": 10.0, "seed": 2019, "box_scale": 1.0, "rows": rows}))
-    assert _earlier_rows(path, argparse.Namespace(shapes=100, episode_s=10.0, seed=2019, box_scale=1.0)) == ({}, {10: rows[0]})
+    assert _earlier_rows(path, dict(shapes=100, episode_s=10.0, seed=2019, box_scale=1.0)) == ({}, {10: rows[0]})
 
 
 def test_rows_of_checkpoints_gone_since_are_kept_in_order(tmp_path):
@@ -144,3 +143,72 @@ def test_curve_end_to_end_writes_rows_and_reuses_them(tmp_path, capsys):
     assert learning_curve.main(argv) == 0
     assert capsys.readouterr().out.count("[curve] it") == 0
     assert json.loads((tmp_path / "curve" / "curve.json").read_text())["rows"] == data["rows"]
+
+
+def test_an_executor_runs_curve_is_its_success_per_split_and_grows_by_its_new_checkpoints(tmp_path, capsys):
+    """An executor run's curve: UniCon's success per split per checkpoint, the same figures as
+    `morphmimic evaluate` on that checkpoint; a later call measures only the new checkpoint,
+    and a shape controller's curve.json in --out is refused, not overwritten."""
+    from learner.evaluation import eval_core, executor_eval as xe, learning_curve
+    from learner.learner import Learner
+    from tests.learner.evaluation.executor_checkpoints import tiny_executor
+
+    run = tiny_executor(tmp_path, clips=("humanoid3d_walk",))
+    loaded = eval_core.load(run)
+    state = Learner(loaded.cfg).state_dict()
+    state["iteration"], state["env_steps"] = 5, 5120
+    checkpoint.save(run / "ckpt", 5, state, keep=5)
+    argv = ["--ckpt-dir", str(run / "ckpt"), "--starts", "1", "--workers", "2", "--out", str(tmp_path / "curve")]
+    assert learning_curve.main(argv) == 0
+    data = json.loads((tmp_path / "curve" / "curve.json").read_text())
+    assert data["task"] == "executor" and data["starts"] == 1 and "humanoid3d_walk" in data["clips"]
+    assert [r["iteration"] for r in data["rows"]] == [0, 5] and data["rows"][1]["env_steps"] == 5120
+    assert set(data["rows"][0]["splits"]) == {"train", "test", "unused"}
+    clips = xe.default_clips(loaded.cfg.task)
+    direct = xe.summarize(xe.evaluate(loaded, clips, 1), clips)
+    for split in ("train", "test"):
+        for field in ("success_pct", "pose_success_pct", "phc_success_pct"):
+            assert data["rows"][0]["splits"][split][field] == direct["splits"][split][field]
+    assert (tmp_path / "curve" / "curve.png").stat().st_size > 0
+    printed = capsys.readouterr().out
+    assert "never reached 90% train success" in printed and "train " in printed
+
+    checkpoint.save(run / "ckpt", 9, {**state, "iteration": 9, "env_steps": 9216}, keep=5)
+    assert learning_curve.main(argv) == 0
+    out = capsys.readouterr().out
+    assert out.count("[curve] it") == 1 and "it     9" in out
+    assert [r["iteration"] for r in json.loads((tmp_path / "curve" / "curve.json").read_text())["rows"]] == [0, 5, 9]
+
+    shape_curve = tmp_path / "shape-curve"
+    shape_curve.mkdir()
+    (shape_curve / "curve.json").write_text(json.dumps({"shapes": 100, "episode_s": 10.0, "seed": 2019, "rows": []}))
+    with pytest.raises(SystemExit, match="task None.*asks for task 'executor'"):
+        learning_curve.main(argv[:-1] + [str(shape_curve)])
+
+
+@pytest.mark.parametrize("flag, value", [("--shapes", "10"), ("--episode-s", "5"), ("--box-scale", "0.5")])
+def test_shape_options_on_an_executor_run_are_a_usage_error(tmp_path, flag, value, capsys):
+    from learner.evaluation import learning_curve
+    from tests.learner.evaluation.executor_checkpoints import tiny_executor
+
+    run = tiny_executor(tmp_path)
+    with pytest.raises(SystemExit) as exc:
+        learning_curve.main(["--ckpt-dir", str(run / "ckpt"), flag, value, "--out", str(tmp_path / "c")])
+    assert exc.value.code == 2
+    assert f"{flag}: options of a shape controller's curve" in capsys.readouterr().err
+    assert not (tmp_path / "c").exists()
+
+
+def test_starts_on_a_shape_run_is_a_usage_error(tmp_path, capsys):
+    import dataclasses
+
+    from learner.evaluation import learning_curve
+    from learner.learner import Learner
+    from learner.presets import PRESETS
+
+    cfg = dataclasses.replace(PRESETS["lower_biped-tiny"][1], name="tiny")
+    checkpoint.save(tmp_path / "ckpt", 1, Learner(cfg).state_dict(), keep=1)
+    with pytest.raises(SystemExit) as exc:
+        learning_curve.main(["--ckpt-dir", str(tmp_path / "ckpt"), "--starts", "3"])
+    assert exc.value.code == 2
+    assert "--starts: an option of an executor's curve" in capsys.readouterr().err
