@@ -239,8 +239,9 @@ def test_ablation_settings_name_the_wait_and_the_rotor_inertia_only_when_changed
     from learner.presets import PRESETS
 
     preset: RunConfig = PRESETS["executor-pd"][1]
-    assert settings(preset) == "pd · per-term · balancer · reactive init · rotor inertia ankles 0.1, arms 0.1 kg m^2"
-    builders = dataclasses.replace(preset.task.executor, ankle_armature=0.01, arm_armature=0.01)
+    assert settings(preset) == ("pd · per-term · balancer · reactive init · 50% of starts on the frame · "
+                                "rotor inertia ankles 0.1, arms 0.1 kg m^2")
+    builders = dataclasses.replace(preset.task.executor, ankle_armature=0.01, arm_armature=0.01, on_frame_share=0.0)
     cfg = dataclasses.replace(preset, task=dataclasses.replace(preset.task, executor=builders))
     assert settings(cfg) == "pd · per-term · balancer · reactive init"
     ex = dataclasses.replace(cfg.task.executor, catch_up_ends="on_track")
