@@ -49,6 +49,11 @@ def seed(text: str) -> int:
     return _within(text, int, lambda v: 0 <= v < 2**32, "an integer >= 0 and below 2^32")
 
 
+def unix_time(text: str) -> float:
+    """A Unix time in seconds: a finite number >= 0 (0: not given)."""
+    return _within(text, float, lambda v: v >= 0, "a finite number of seconds >= 0 (a Unix time)")
+
+
 def percent(text: str) -> float:
     """A percentage in [0, 100] (a fall-down target)."""
     return _within(text, float, lambda v: 0.0 <= v <= 100.0, "a number in [0, 100]")

@@ -39,11 +39,11 @@ def main(argv: list[str]) -> int:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--ckpt-dir", required=True, help="directory of <iteration>/state.pt checkpoints")
     p.add_argument("--run-dir", default="", help="the run directory (its config.json time is the start)")
-    p.add_argument("--start", type=float, default=0.0, help="training start, Unix time (overrides --run-dir)")
+    p.add_argument("--start", type=cli_args.unix_time, default=0.0, help="training start, Unix time (overrides --run-dir)")
     p.add_argument("--shapes", type=cli_args.positive_int, default=None, help="shape controllers: random shapes (default 100)")
     p.add_argument("--episode-s", type=cli_args.positive_float, default=None,
                    help="shape controllers: episode length, s (default 10)")
-    p.add_argument("--seed", type=cli_args.seed, default=2019)
+    p.add_argument("--seed", type=cli_args.seed, default=None, help="shape controllers: the shapes' seed (default 2019)")
     p.add_argument("--box-scale", type=cli_args.box_scale, default=None,
                    help="shape controllers: shapes from the box shrunk toward the base shape (a curriculum's progress; "
                         "default 1: the whole box)")
@@ -61,7 +61,7 @@ def main(argv: list[str]) -> int:
         raise SystemExit(f"--ckpt-dir {args.ckpt_dir}: no checkpoints")
     newest = eval_core.load(ckpts[-1])  # the run's task decides which curve
     executor = newest.cfg.task.name == "executor"
-    kind_flags = {"--shapes": args.shapes, "--episode-s": args.episode_s, "--box-scale": args.box_scale}
+    kind_flags = {"--shapes": args.shapes, "--episode-s": args.episode_s, "--seed": args.seed, "--box-scale": args.box_scale}
     if executor:
         misplaced = [flag for flag, value in kind_flags.items() if value is not None]
         if misplaced:
@@ -75,6 +75,7 @@ def main(argv: list[str]) -> int:
             p.error(f"--starts: an option of an executor's curve; {newest.name} is a {newest.cfg.task.name} run "
                     "(its curve takes --shapes, --episode-s, --box-scale)")
         args.shapes, args.episode_s = args.shapes or 100, args.episode_s or 10.0
+        args.seed = 2019 if args.seed is None else args.seed
         args.box_scale = 1.0 if args.box_scale is None else args.box_scale
         args.target = 20.0 if args.target is None else args.target
         proto = {k: getattr(args, k) for k in PROTOCOL}

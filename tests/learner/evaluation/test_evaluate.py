@@ -485,6 +485,8 @@ def test_shipped_controller_stays_up_through_a_moderate_morph(name: str, strengt
     ("ablation", "--seed", "-1", "an integer >= 0"),
     ("learning_curve", "--target", "nan", "a number in [0, 100]"),
     ("learning_curve", "--target", "150", "a number in [0, 100]"),
+    ("learning_curve", "--start", "nan", "a finite number of seconds >= 0"),
+    ("learning_curve", "--start", "-5", "a finite number of seconds >= 0"),
 ])
 def test_bad_numbers_are_usage_errors_naming_the_value(command, flag, bad, allowed, capsys) -> None:
     """Rejected before any checkpoint is read (the checkpoint path does not exist)."""

@@ -186,7 +186,7 @@ def test_an_executor_runs_curve_is_its_success_per_split_and_grows_by_its_new_ch
         learning_curve.main(argv[:-1] + [str(shape_curve)])
 
 
-@pytest.mark.parametrize("flag, value", [("--shapes", "10"), ("--episode-s", "5"), ("--box-scale", "0.5")])
+@pytest.mark.parametrize("flag, value", [("--shapes", "10"), ("--episode-s", "5"), ("--seed", "3"), ("--box-scale", "0.5")])
 def test_shape_options_on_an_executor_run_are_a_usage_error(tmp_path, flag, value, capsys):
     from learner.evaluation import learning_curve
     from tests.learner.evaluation.executor_checkpoints import tiny_executor
