@@ -104,6 +104,7 @@ class ClipOutcomes:
         self._pending_segments[:] = 0.0
         self._pending_tracked[:] = 0.0
         if not meta:
+            self.seen = 0
             return
         ids = [str(c) for c in meta["clip_ids"]]
         segments = np.asarray(arrays["clips/segments"], dtype=np.float64).reshape(-1)

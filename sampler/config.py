@@ -33,8 +33,8 @@ class SamplerConfig:
     each clip times exp(-clip_k r), r the share of its recent training segments tracked to its
     end; 0 = UniCon's balancer alone."""
     clip_memory: float = 0.95
-    """Per tick, the weight the clip counts so far keep against the new ones (0.95: about the last
-    20 iterations count)."""
+    """At each tick that brings new counts, the weight the clip counts so far keep against them
+    (0.95: about the last 20 reported iterations count; a tick without a report forgets nothing)."""
     vbar_floor: float = 1e-3
     """Smallest |Vbar| used as the density's temperature: guards the division early in training."""
     vm_hidden: tuple[int, ...] = (64, 64)

@@ -18,15 +18,14 @@ import numpy as np
 
 from learner.evaluation import eval_core, executor_eval as xe
 
-# Fields of curve.json that must match for its rows to be reused (learning_curve._earlier_rows).
-PROTOCOL = ("task", "starts", "clips")
 # The per-split figures a row keeps (executor_eval.stats keys).
 FIELDS = ("success_pct", "pose_success_pct", "phc_success_pct", "mpjpe_mm", "tracked_pct")
 DEFAULT_TARGET = 90.0  # the issue's goal: 90% of the train starts tracked to the end
 
 
 def protocol(loaded: eval_core.Loaded, starts: int) -> dict[str, Any]:
-    """What a row of this curve depends on besides the checkpoint: the clips and the starts."""
+    """What a row of this curve depends on besides the checkpoint: the clips and the starts (the
+    fields of curve.json that must match for its rows to be reused, `learning_curve._earlier_rows`)."""
     return {"task": "executor", "starts": starts, "clips": [c.clip_id for c in xe.default_clips(loaded.cfg.task)]}
 
 

@@ -97,6 +97,9 @@ def main(argv: list[str]) -> int:
         if loaded.cfg.task.name != newest.cfg.task.name:
             raise SystemExit(f"{loaded.path}: task {loaded.cfg.task.name!r}, but the newest checkpoint in --ckpt-dir "
                              f"is {newest.cfg.task.name!r}: one curve is one run")
+        if executor and executor_curve.protocol(loaded, args.starts)["clips"] != proto["clips"]:
+            raise SystemExit(f"{loaded.path}: its config evaluates other clips than the newest checkpoint's "
+                             "(the run changed its clip set): curve the two parts into separate --out folders")
         wall = float(loaded.state.get("train_seconds", float("nan")))
         if not np.isfinite(wall):
             wall = fallback_wall.get(c, float("nan"))

@@ -65,7 +65,8 @@ def live_task(loaded: eval_core.Loaded, clip: str | None = None, episode_s: floa
     cfg = loaded.cfg.task
     if cfg.name == "executor":
         ex = dataclasses.replace(cfg.executor, clips=(clip,) if clip else (), split="all", at_clip_end="reschedule",
-                                 reactive_init=False, catch_up_steps=0, termination="none", projectile=True)
+                                 reactive_init=False, on_frame_share=0.0, catch_up_steps=0, termination="none",
+                                 projectile=True)
         return dataclasses.replace(cfg, episode_s=episode_s, executor=ex)
     return dataclasses.replace(eval_core.eval_task(cfg, episode_s), **({"clip_id": clip} if clip else {}))
 

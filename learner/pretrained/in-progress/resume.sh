@@ -25,7 +25,7 @@ ORDER=(xmix-50 executor-torque manta-course)  # what to resume first
 FRESH=(manta-course)
 # FORK: a run that starts from a shared checkpoint, when it has none of its own (the rotor-inertia
 # arms xank-* forked the shipped executor, 2026-12-05, the lower biped's ablation arms lbabl-fork).
-declare -A FORK=()
+declare -A FORK=([xmix-50]=learner/pretrained/executor)  # its iteration 1816, shipped in session 42
 DRY=0
 if [ "${1:-}" = "--dry-run" ]; then DRY=1; shift; fi
 names=("$@")
