@@ -37,6 +37,31 @@ def measure(loaded: eval_core.Loaded, starts: int, workers: int) -> dict[str, An
     return {"splits": {name: keep(s) for name, s in summary["splits"].items()}, "overall": keep(summary["overall"])}
 
 
+def is_figure(value, none_ok: bool = False) -> bool:
+    """A finite number (not a bool), or None where allowed: a figure read back from a curve.json."""
+    if value is None:
+        return none_ok
+    if isinstance(value, bool):
+        return False
+    return (isinstance(value, float) and abs(value) < float("inf")) or (isinstance(value, int) and abs(value) <= 2**53)
+
+
+def row_problem(row: dict) -> str:
+    """What is wrong with an executor row read back from a curve.json, or "": `splits` must map
+    split names to objects whose `FIELDS` are numbers or null."""
+    splits = row.get("splits")
+    if not isinstance(splits, dict) or not splits:
+        return f"splits = {splits!r}; allowed: an object of splits (train, test, ...)"
+    for name, figures in splits.items():
+        if not isinstance(figures, dict):
+            return f"splits[{name!r}] = {figures!r}; allowed: an object of figures"
+        for field in FIELDS:
+            value = figures.get(field)
+            if not is_figure(value, none_ok=True):
+                return f"splits[{name!r}][{field!r}] = {value!r}; allowed: a number or null"
+    return ""
+
+
 def _split(row: dict, split: str, field: str = "success_pct") -> float:
     value = row.get("splits", {}).get(split, {}).get(field)
     return float("nan") if value is None else float(value)

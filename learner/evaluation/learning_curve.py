@@ -83,7 +83,7 @@ def main(argv: list[str]) -> int:
     start = args.start or (os.path.getmtime(Path(args.run_dir) / "config.json") if args.run_dir else 0.0)
     out = Path(args.out) if args.out else Path(args.ckpt_dir).parent / "curve"
     out.mkdir(parents=True, exist_ok=True)
-    done, stale = _earlier_rows(out / "curve.json", proto, versioned=not executor)
+    done, stale = _earlier_rows(out / "curve.json", proto, executor=executor)
     rows = dict(done)
     for it, row in stale.items():  # kept unless its checkpoint is measured again below
         rows[it] = {**row, "fall_down_pct_extreme10": None}
@@ -189,12 +189,12 @@ EXTREME = "base"
 PROTOCOL = ("shapes", "episode_s", "seed", "box_scale")
 
 
-def _earlier_rows(path: Path, proto: dict, versioned: bool = True) -> tuple[dict[int, dict], dict[int, dict]]:
+def _earlier_rows(path: Path, proto: dict, executor: bool = False) -> tuple[dict[int, dict], dict[int, dict]]:
     """Rows of an earlier curve.json in `--out`, iteration -> row: (current, stale). `proto`: the
     fields this call's rows depend on (the shapes, episode length, seed and box; for an executor
     the task, clips and starts). A file made with others is refused rather than overwritten: its
-    rows may be the only record of checkpoints the run has since deleted. `versioned` (shape
-    curves): rows measured before the extreme-10% ranking changed are stale: their checkpoints
+    rows may be the only record of checkpoints the run has since deleted, and so is one whose rows
+    lack or mistype a figure the curve reads (`_row_problem`). Shape curves (not `executor`): rows measured before the extreme-10% ranking changed are stale: their checkpoints
     are measured again, and rows whose checkpoints are gone keep their fall-down % with no
     extreme-10% figure."""
     if not path.exists():
@@ -210,7 +210,30 @@ def _earlier_rows(path: Path, proto: dict, versioned: bool = True) -> tuple[dict
         raise SystemExit(f"{path} was made with " + ", ".join(f"{k} {_short(a)}" for k, (a, _) in differ.items())
                          + "; this call asks for " + ", ".join(f"{k} {_short(b)}" for k, (_, b) in differ.items())
                          + ": choose another --out (its rows are kept)")
-    return (rows, {}) if not versioned or earlier.get("extreme") == EXTREME else ({}, rows)
+    for row in rows.values():
+        problem = _row_problem(row, executor)
+        if problem:
+            raise SystemExit(f"{path}: row of iteration {row.get('iteration')!r}: {problem}; move the file away or "
+                             "choose another --out")
+    return (rows, {}) if executor or earlier.get("extreme") == EXTREME else ({}, rows)
+
+
+def _row_problem(row, executor: bool) -> str:
+    """What is wrong with one row of a curve.json, or "" (each field the curve reads, by type)."""
+    if not isinstance(row, dict):
+        return f"{type(row).__name__}, not an object"
+    for key in ("iteration", "env_steps"):
+        if not isinstance(row.get(key), int) or isinstance(row.get(key), bool) or not 0 <= row[key] <= 2**53:
+            return f"{key} = {_short(row.get(key))}; allowed: an integer in [0, 2^53]"
+    if not executor_curve.is_figure(row.get("wall_s"), none_ok=True):
+        return f"wall_s = {row.get('wall_s')!r}; allowed: seconds or null"
+    if executor:
+        return executor_curve.row_problem(row)
+    if not executor_curve.is_figure(row.get("fall_down_pct")):
+        return f"fall_down_pct = {row.get('fall_down_pct')!r}; allowed: a number"
+    if not executor_curve.is_figure(row.get("fall_down_pct_extreme10"), none_ok=True):
+        return f"fall_down_pct_extreme10 = {row.get('fall_down_pct_extreme10')!r}; allowed: a number or null"
+    return ""
 
 
 def _short(value) -> str:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 
 import pytest
 
@@ -45,7 +46,7 @@ def test_wall_time_never_runs_backwards_when_a_checkpoint_was_copied_later(tmp_p
 
 def test_earlier_rows_are_reused_only_for_the_same_protocol_and_another_is_refused(tmp_path):
     path = tmp_path / "curve.json"
-    rows = [{"iteration": 10, "fall_down_pct": 90.0}]
+    rows = [{"iteration": 10, "env_steps": 81920, "fall_down_pct": 90.0}]
     path.write_text(json.dumps({"shapes": 100, "episode_s": 10.0, "seed": 2019, "extreme": "base", "rows": rows}))
     same = dict(shapes=100, episode_s=10.0, seed=2019, box_scale=1.0)
     assert _earlier_rows(path, same) == ({10: rows[0]}, {})  # a curve.json from before --box-scale: the whole box
@@ -64,7 +65,7 @@ def test_rows_from_before_the_extreme_ranking_changed_are_stale(tmp_path):
     """A curve.json without the "extreme" version ranked the extreme 10% from the box centre:
     its rows come back as stale (measured again where the checkpoint still exists)."""
     path = tmp_path / "curve.json"
-    rows = [{"iteration": 10, "fall_down_pct": 90.0, "fall_down_pct_extreme10": 95.0}]
+    rows = [{"iteration": 10, "env_steps": 81920, "fall_down_pct": 90.0, "fall_down_pct_extreme10": 95.0}]
     path.write_text(json.dumps({"shapes": 100, "episode_s": 10.0, "seed": 2019, "box_scale": 1.0, "rows": rows}))
     assert _earlier_rows(path, dict(shapes=100, episode_s=10.0, seed=2019, box_scale=1.0)) == ({}, {10: rows[0]})
 
@@ -212,3 +213,25 @@ def test_starts_on_a_shape_run_is_a_usage_error(tmp_path, capsys):
         learning_curve.main(["--ckpt-dir", str(tmp_path / "ckpt"), "--starts", "3"])
     assert exc.value.code == 2
     assert "--starts: an option of an executor's curve" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("executor, row, says", [
+    (False, {"iteration": 10, "env_steps": 100, "fall_down_pct": "high"}, "fall_down_pct = 'high'"),
+    (False, {"iteration": "10", "env_steps": 100, "fall_down_pct": 5.0}, "iteration = '10'"),
+    (False, {"iteration": 10, "env_steps": 10**400, "fall_down_pct": 5.0}, "env_steps = "),
+    (False, {"iteration": 10, "env_steps": 100, "fall_down_pct": 5.0, "wall_s": [1]}, "wall_s = [1]"),
+    (False, [10, 100], "unreadable curve"),
+    (True, {"iteration": 10, "env_steps": 100, "splits": 5}, "splits = 5"),
+    (True, {"iteration": 10, "env_steps": 100, "splits": {"train": []}}, "splits['train'] = []"),
+    (True, {"iteration": 10, "env_steps": 100, "splits": {"train": {"success_pct": True}}}, "splits['train']['success_pct'] = True"),
+])
+def test_an_earlier_row_of_the_wrong_type_is_refused_naming_it(tmp_path, executor, row, says):
+    """A curve.json read back is input: a row that lacks or mistypes a figure the curve reads is
+    refused in one line naming it (before any checkpoint is evaluated), and the file is kept."""
+    path = tmp_path / "curve.json"
+    proto = {"task": "executor", "starts": 1, "clips": ["a"]} if executor else dict(shapes=1, episode_s=1.0, seed=1, box_scale=1.0)
+    path.write_text(json.dumps({**proto, "extreme": "base", "rows": [row]}))
+    before = path.read_text()
+    with pytest.raises(SystemExit, match=re.escape(says)):
+        _earlier_rows(path, proto, executor=executor)
+    assert path.read_text() == before
