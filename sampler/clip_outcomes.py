@@ -55,7 +55,10 @@ class ClipOutcomes:
     def report(self, clip_ids: Sequence[str], segments: Sequence[int], tracked: Sequence[int]) -> int:
         """Add one report's counts (held until the next `update`); returns the segments added.
         ValueError (`check`) before anything is stored."""
-        rows = self.check(clip_ids, segments, tracked)
+        return self.add(self.check(clip_ids, segments, tracked))
+
+    def add(self, rows: list[tuple[int, int, int]]) -> int:
+        """Add counts `check` accepted; returns the segments added."""
         for i, n, t in rows:
             self._pending_segments[i] += n
             self._pending_tracked[i] += t

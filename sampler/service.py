@@ -141,9 +141,7 @@ class SamplerService:
                 # A retry whose first try was stored (the reply was lost): idempotent, like a tick.
                 self.duplicate_reports += 1
                 return wire.OkMsg(info=f"report {msg.report_id} already stored ({self.reports[msg.report_id]} pairs)")
-            s.check_clip_report(msg.clip_ids, msg.clip_segments, msg.clip_tracked)  # before anything is stored
-            m = s.report(msg.params, msg.values)
-            s.report_clips(msg.clip_ids, msg.clip_segments, msg.clip_tracked)
+            m = s.report(msg.params, msg.values, (msg.clip_ids, msg.clip_segments, msg.clip_tracked))
             if msg.report_id:
                 self.reports[msg.report_id] = m
                 while len(self.reports) > REPORT_IDS_KEPT:

@@ -10,7 +10,7 @@ Algorithm 1 mapped onto the calls:
     lines 15-16  report(params, values): pairs (s_b, V(s)) stored until the next tick (buffer D)
     lines 24-26  tick(i) fits Vm and Vbar on the stored pairs, then clears them (line 27)
 
-Clips: `report_clips` adds the training segments' outcomes per clip and each tick reweights the
+Clips: `report` (or `report_clips`) adds the training segments' outcomes per clip and each tick reweights the
 motion balancer by them (adaptive clip sampling, `sampler/clip_outcomes.py`; off for clip_k = 0).
 
 A tick is idempotent for a repeated iteration number (a client's retry after a lost reply): the
@@ -82,10 +82,14 @@ class ShapeSampler:
         self.draws_served += n
         return self.buffer[rows].copy(), clips
 
-    def report(self, params: np.ndarray, values: np.ndarray) -> int:
-        """Store pairs (s_b `[m, d]`, V(s) `[m]`) for the next fit; returns m.
+    def report(self, params: np.ndarray, values: np.ndarray,
+               clips: tuple[Sequence[str], Sequence[int], Sequence[int]] = ((), (), ())) -> int:
+        """Store pairs (s_b `[m, d]`, V(s) `[m]`) for the next fit, and `clips`, the training
+        segments per clip (ids, segments, tracked; `report_clips`); returns m.
 
-        Raises `ParamError` (a ValueError) naming the first out-of-range or NaN entry."""
+        Raises `ParamError` (a ValueError) naming the first out-of-range or NaN entry, or a
+        ValueError for the clip counts; everything is checked before anything is stored."""
+        clip_rows = self._clip_rows(*clips)
         params = np.asarray(params, dtype=np.float64)
         values = np.asarray(values, dtype=np.float64)
         if params.ndim != 2 or params.shape[1] != self.space.dim:
@@ -100,22 +104,24 @@ class ShapeSampler:
         self._pending_params.append(params.copy())
         self._pending_values.append(values.copy())
         self._trim_pending()
+        if self.clip_outcomes is not None:
+            self.clip_outcomes.add(clip_rows)
         return params.shape[0]
 
-    def check_clip_report(self, clip_ids: Sequence[str], segments: Sequence[int], tracked: Sequence[int]) -> None:
-        """ValueError if `report_clips` would refuse these counts (nothing is stored here)."""
+    def _clip_rows(self, clip_ids: Sequence[str], segments: Sequence[int], tracked: Sequence[int]) -> list[tuple[int, int, int]]:
+        """`ClipOutcomes.check` of these counts; a sampler without clips takes none."""
         if self.clip_outcomes is None:
             if len(clip_ids):
                 raise ValueError(f"clip outcomes for {list(clip_ids)[:3]}: this sampler draws no clips")
-            return
-        self.clip_outcomes.check(clip_ids, segments, tracked)
+            return []
+        return self.clip_outcomes.check(clip_ids, segments, tracked)
 
     def report_clips(self, clip_ids: Sequence[str], segments: Sequence[int], tracked: Sequence[int]) -> int:
         """Training segments per clip and how many were tracked to the clip's end, for the next
         tick's reweighting; returns the segments added. ValueError naming a clip this sampler does
         not draw or counts that do not add up (nothing stored); a sampler without clips takes none."""
-        self.check_clip_report(clip_ids, segments, tracked)
-        return self.clip_outcomes.report(clip_ids, segments, tracked) if self.clip_outcomes is not None else 0
+        rows = self._clip_rows(clip_ids, segments, tracked)
+        return self.clip_outcomes.add(rows) if self.clip_outcomes is not None else 0
 
     def _trim_pending(self) -> None:
         """Keep only the newest `max_pending_pairs` pairs (bounded memory if ticks stop coming)."""

@@ -170,9 +170,9 @@ def test_a_resent_report_is_stored_once(service, monkeypatch):
     real_report = service.sampler.report
     calls = []
 
-    def slow_first_report(params, values):
+    def slow_first_report(params, values, clips=((), (), ())):
         calls.append(len(values))
-        m = real_report(params, values)
+        m = real_report(params, values, clips)
         if len(calls) == 1:
             time.sleep(0.8)  # longer than the client's timeout: its first try times out
         return m
