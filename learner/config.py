@@ -14,8 +14,8 @@ from common.config_limits import Limit, above, at_least, between, check_limits, 
 from common.policy import PolicyConfig
 from common.tasks.base import TaskConfig
 from common.tasks.body_config import BodyConfig
-from common.tasks.executor_config import ExecutorConfig
-from common.tasks.imitate_config import ImitateConfig
+from common.tasks.executor.config import ExecutorConfig
+from common.tasks.shape.config import ImitateConfig
 from learner.ppo import PPOConfig
 from sampler.config import SamplerConfig
 

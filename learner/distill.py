@@ -43,7 +43,7 @@ import mujoco
 import numpy as np
 import torch
 
-from common.tasks.executor import pd_lead_s, pd_target
+from common.tasks.executor.env import pd_lead_s, pd_target
 from learner import checkpoint
 from learner.evaluation import cli_args
 
@@ -104,7 +104,7 @@ def distill(loaded, out: str | Path, rounds: int = 6, steps_per_round: int = 20_
     """DAgger from the PD executor checkpoint `loaded` (`load_teacher`) into a torque executor
     checkpoint at `out` (`out/ckpt/<iteration>/state.pt`); returns the checkpoint directory."""
     from common.policy import anneal_log_std
-    from common.tasks.executor import ExecutorEnv
+    from common.tasks.executor.env import ExecutorEnv
     from learner.evaluation import eval_core
     from learner.learner import Learner
 

@@ -46,61 +46,22 @@ ADAPTIVE_K = 1.0
 """Uniformity knob of the shape presets' adaptive sampling (see `_shape_preset`)."""
 
 
-def _shape_preset(character: str, parameterization: str, plot: tuple[str, str], variant: str = "",
-                  swimmer: bool = False) -> RunConfig:
-    """Won & Lee 2019 over one character family (METHOD.md A): 30 Hz control, 480 Hz physics
-    (the characters' stable default; the paper runs 600 Hz), 30 s episodes, 3 x 128 ReLU nets,
-    gamma 0.95, 4096 transitions per update, 10 epochs of 128-transition minibatches, adaptive
-    shape sampling with k = 1.
+def _shape_preset(character: str, variant: str = "") -> RunConfig:
+    """Won & Lee 2019 over one character family (METHOD.md A): the task from
+    `common.tasks.shape.presets`, 3 x 128 ReLU nets, gamma 0.95, 4096 transitions per update,
+    10 epochs of 128-transition minibatches, adaptive shape sampling with k = `ADAPTIVE_K`.
 
-    Choices measured on this 2-core machine: 5 epochs x 256 (a quarter of the gradient steps)
-    left the learner idle 95% of the time and learned too slowly per sample (episode length
-    28 -> 35 steps in 320k steps), so the paper's 10 x 128 is back; k = 5 (the sampler's
-    default) weighted the worst shapes ~400x over the best early on (Vm 15..43, Vbar 23), so
-    training chased bodies it could not yet control: k = 1 keeps that ratio near 3. Initial
-    action noise is small (log std -1 on actions scaled by 0.5 rad). The quadruped's shanks may
-    touch the floor (its shank capsules graze it in the trot on many random shapes: 16 of 16
-    zero-action episodes "fell" within 8 s that way, 9 of 16 when only trunk, head and thighs count).
-
-    PPO step size: with the paper's 10 x 128 at lr 3e-4 and a learned log-std, the log-std fell
-    from -1 to -2 within 1.4 M steps and each update moved the policy by KL 1.8-4 (clip
-    fraction 0.88, measured on a 4096-step batch of that checkpoint), so the policy never
-    settled. Now: lr 1e-4 (MASS's default) and a log-std that is not learned but annealed by
-    UniCon's policy variance controller from -1.0 to -1.5 over 5 M steps; KL per update then
-    stays near 0.02-0.04 at first; but as the log-std falls the same step moves the policy further
-    (KL 0.3-0.45 per update at log-std -1.5, 5.3 M steps). So the policy stops moving for the rest
-    of an update once a minibatch's KL passes 0.1 (`kl_stop`; the value net trains on), measured
-    on a fork of the lower-biped curriculum run at 5.3 M steps (box x0.5, gamma 0.99): after
-    1.46 M more steps each, mean training episode 78 vs 67 control steps and mean time up on 100
-    shapes of that box 5.1 s vs 3.1 s (`morphmimic evaluate --box-scale 0.5 --episode-s 30 --seed 7`).
-    PD gains follow each shape's torque limits (`pd_gains_follow_torque`): with the base's gains
-    the smallest bodies' PD sat at its limits. Measured on a fork of the lower-biped curriculum
-    run at 41.0 M steps (whole box; 38.3% fall-down on 300 shapes, 30 s, at the fork): 3.85 M steps
-    later, at the same iteration, 25.3% with the gains scaled against 44.0% for the run that kept
-    the base's gains (smallest quarter of shapes by volume: 60% at the fork, then 36% against 72%).
-    The manta asks each shape for the speed its own tracked stroke reaches (`swimmer_speed =
-    "stroke_fit"`, `common.tasks.stroke_fit`): on 200 random shapes that speed is x0.27-x2.56 the
-    length-scaled target (32.8% mean error for a perfectly tracked stroke), the fitted model's
-    x0.42-x1.35 on held-out shapes (10.7% mean error). The fish keeps the length rule
-    (its shapes' strokes: x0.78-x1.18 on 10 shapes). The manta also observes its offset from the
-    reference's course (`observe_course`), on which its episodes end: its run without it drifted
-    off course late in the episode (falls at 19.5 s on average, 40% of 50 shapes at 2.83 M
-    steps), sideways as much as vertically. Variants for the ablations:
-    "uniform" (k = 0), "nonorm" (no reward normalization), "fixedshape" (the base shape only)."""
+    Choices measured on this 2-core machine (docs/shape-controllers.md): 5 x 256 left the
+    learner idle and learned too slowly per sample, so the paper's 10 x 128 stays; k = 1 keeps
+    the worst-to-best shape weight near 3 early on (k = 5 weighted it ~400x and chased bodies
+    the policy could not yet control). The log-std is not learned but annealed by UniCon's
+    policy variance controller from -1.0 to -1.5 over 5 M steps at lr 1e-4 (MASS's default); a
+    learned log-std collapsed and moved the policy by KL 1.8-4 per update. The policy stops for
+    the rest of an update once a minibatch's KL passes 0.1 (`kl_stop`; the value net trains on)."""
     from common.policy import PolicyConfig
-    from common.tasks.base import TaskConfig
-    from common.tasks.body_config import BodyConfig
-    from common.tasks.imitate_config import ImitateConfig
+    from common.tasks.shape.presets import SHAPE_TASKS, shape_task
     from learner.ppo import PPOConfig
 
-    task = TaskConfig(
-        name=character, control_hz=30.0, sim_hz=480.0, episode_s=30.0,
-        body=BodyConfig(parameterization=parameterization, vary_shape=variant != "fixedshape"),
-        imitate=ImitateConfig(reward_normalization=variant != "nonorm", max_root_deviation=1.0 if swimmer else 0.0,
-                              pd_gains_follow_torque=True,
-                              swimmer_speed="stroke_fit" if character == "manta" else "length",
-                              observe_course=character == "manta"),
-    )
     return RunConfig(
         name=f"{character}-{variant}" if variant else character,
         total_env_steps=20_000_000,
@@ -108,31 +69,24 @@ def _shape_preset(character: str, parameterization: str, plot: tuple[str, str], 
         checkpoint_every=10,
         keep_checkpoints=200,
         vm_plot_every=20,
-        task=task,
+        task=shape_task(character, variant),
         policy=PolicyConfig(init_log_std=-1.0, learn_log_std=False, final_log_std=-1.5, log_std_anneal_steps=5_000_000),
         ppo=PPOConfig(epochs=10, minibatch=128, lr=1e-4, kl_stop=0.1),
         actors=ActorConfig(num_actors=2, envs_per_actor=8, unroll_length=32),
-        sampler=SamplerConfig(k=0.0 if variant == "uniform" else ADAPTIVE_K, plot_params=plot),
+        sampler=SamplerConfig(k=0.0 if variant == "uniform" else ADAPTIVE_K, plot_params=SHAPE_TASKS[character][1]),
     )
 
 
-_SHAPE_TASKS = {
-    "lower_biped": ("random", ("global_z", "global_x"), False, "lower-body biped walking (MASS walk), random global x per-segment scales"),
-    "quadruped": ("random", ("global_z", "global_x"), False, "quadruped trotting (procedural), random global x per-segment scales"),
-    "biped": ("leg_arm", ("leg_length", "arm_length"), False, "full biped walking (MASS walk), leg length vs arm length"),
-    "fish": ("random", ("global_x", "global_z"), True, "fish swimming (procedural tail beat), random global x per-segment scales"),
-    "manta": ("random", ("global_x", "global_y"), True, "manta ray swimming (procedural wing flap), random global x per-segment scales"),
-}
-_VARIANTS = {
-    "": "adaptive shape sampling (k = 1)",
-    "uniform": "ablation: uniform shape sampling (k = 0)",
-    "nonorm": "ablation: no reward normalization",
-    "fixedshape": "ablation: trained on the base shape only",
-}
-for _char, (_param, _plot, _swim, _text) in _SHAPE_TASKS.items():
-    for _variant, _vtext in _VARIANTS.items():
-        _cfg = _shape_preset(_char, _param, _plot, _variant, _swim)
-        PRESETS[_cfg.name] = (f"{_text}; {_vtext}", _cfg)
+def _add_shape_presets() -> None:
+    from common.tasks.shape.presets import SHAPE_TASKS, VARIANTS
+
+    for character, (_, _, _, text) in SHAPE_TASKS.items():
+        for variant, vtext in VARIANTS.items():
+            cfg = _shape_preset(character, variant)
+            PRESETS[cfg.name] = (f"{text}; {vtext}", cfg)
+
+
+_add_shape_presets()
 PRESETS["lower_biped-tiny"] = (
     "two iterations of lower_biped for smoke tests",
     dataclasses.replace(
@@ -144,81 +98,20 @@ PRESETS["lower_biped-tiny"] = (
 
 
 def _executor_preset(variant: str = "") -> RunConfig:
-    """UniCon 2020's motion executor (METHOD.md B) on the DeepMimic humanoid over the train split
-    of every clip that plays on it: torque actions, agent-centric observation with tau = 1, the
-    five-term reward ended by any term below 0.1, reactive state initialization, 60 Hz control
-    with 4 substeps (240 Hz physics), the motion balancer's clip draws, UniCon's policy variance
-    controller and a KL penalty.
+    """UniCon 2020's motion executor (METHOD.md B): the task from `common.tasks.executor.presets`,
+    UniCon's policy variance controller and a KL penalty.
 
-    Deviations from UniCon, for this 2-core CPU: a 3 x 256 network instead of 3 x 1024 (the
-    learner's Adam step costs about 10x less per sample: DESIGN.md "Measured"). At equal wall time
-    (`--preset executor-pd` from scratch, the two side by side for 20 min, 2026-12-02): 3 x 256
-    collected 475,136 steps with the learner at 11% of wall time, 3 x 1024 417,792 steps with it
-    at 77%, and their training returns were level (17.4 and 17.1 over the last 10 iterations):
-    the wider network buys nothing yet and leaves the actors no room; 8192 transitions
-    per update from 32 environments instead of 4096 agents x 64 steps, 5 epochs of 512.
-    Action noise starts at log std -2 (0.14 of each effort factor, 52 N m at the hips) and the
-    variance controller takes it to -2.5 over 20 M steps: at -1 (0.37, 143 N m) the random
-    torques alone broke the joint-velocity term within one control step (40 starts on the
-    tracked frame: every one ended at step 1), and the first 0.8 M steps of a run with it moved
-    the mean return from 2.3 to 2.8 only; at -2 an untrained policy's return is 2.8 already.
-    PPO step: at lr 2e-4 with the actors' weights up to two versions old, half of every batch
-    fell outside the clip range (clip fraction 0.50-0.57) and the KL stop cut a quarter of the
-    policy's minibatch steps; lr 5e-5 with decoupled PPO's proximal anchor (`--ppo.proximal-anchor`)
-    held the clip fraction at 0.24-0.30 with every step taken, and its mean training return led
-    at equal iterations (8.23 against 7.80 over iterations 50-59, 9.10 against 8.47 over 100-119:
-    two runs side by side from scratch, 2026-12-02).
-    The per-term rule watches the four pose terms; joint velocity stays in the reward (weight
-    0.1) but ends nothing (`--task.executor.terminate-on`). Measured (30 starts on the tracked
-    frame each, no offset, no wait): with all five watched, a zero PD residual - the humanoid's
-    PD on the reference itself - ended at step 1 in the median (22 of 30 on joint_velocity;
-    ankles and knees carry the error: the reset lifts the body out of the floor by 9 mm on
-    average, up to 41 mm, and the landing jolts them), and random torques of std 0.05 ended
-    30 of 30 at step 1 on it (std 0.03: 27 of 30); an inverse-dynamics torque oracle
-    (`mj_inverse` on the reference acceleration) ended 28 of 30 there too. With the four pose
-    terms watched, the zero PD residual tracks 14.5 steps in the median, 15 with noise std
-    0.135, so an episode past the wait has something to learn from.
-    The "pd" variant's PD damps toward the next frame's joint velocity, not toward rest
-    (`pd_velocity_target`; since 2026-12-04): two arms forked from one PD checkpoint at 14.7 M
-    steps and trained side by side to 32.8 M, with the switch and without, tracked 8.8-13.1%
-    against 1.2-2.5% of train starts with all five terms above 0.1 and 17.5-22.5% against
-    6.2-10.0% of held-out starts with the pose terms (six checkpoints each, iterations
-    3700-4000; docs/executor.md). `--task.executor.no-pd-velocity-target` restores the old PD.
-    The "pd" variant's ankles, shoulders and elbows have a rotor inertia of 0.1 kg m^2, not the
-    builder's 0.01 (`ankle_armature`, `arm_armature`; since 2026-12-05): at the force limit the
-    light segments' velocities flipped from substep to substep. Two arms forked from the shipped
-    executor at 49.6 M steps and trained side by side to 56.5 M tracked 18.8-20.6% against
-    8.8-10.0% of train starts with all five terms above 0.1 (four checkpoints each; docs/executor.md).
-    `--task.executor.ankle-armature 0.01 --task.executor.arm-armature 0.01` restores the old body.
-    The "pd" variant starts half its episodes on the tracked frame with the rule from the first
-    step, as the evaluation does, and the other half reactively (`on_frame_share`; since
-    2026-12-05, session 42): two arms from one checkpoint at 9.6 M steps, trained side by side to
-    12.3 M, tracked 24.4-25.0% against 20.6-22.5% of train starts and 6.2% against 3.8-5.0% of
-    held-out starts (four checkpoints each), 2.3 points lower against a projectile every 20 steps
-    (`learner/pretrained/executor/ablation-mixed-starts/`). `--task.executor.on-frame-share 0` restores it.
-    Variants for the ablations: "pd" (PD targets), "noterm" (the sum rule instead of per-term
-    termination), "uniform" (uniform clip draws instead of the balancer), "norsis" (start on
-    the tracked frame, no noise)."""
+    Deviations from UniCon for this 2-core CPU, each measured (docs/executor.md): a 3 x 256
+    network instead of 3 x 1024 (at equal wall time the wider one collected 12% fewer steps with
+    the learner at 77% of wall time, and learned no faster); 8192 transitions per update from 32
+    environments instead of 4096 agents x 64 steps, 5 epochs of 512. Action noise starts at log
+    std -2 and is annealed to -2.5 over 20 M steps: at -1 random torques alone broke the
+    joint-velocity term within one control step. lr 5e-5 with decoupled PPO's proximal anchor
+    (`--ppo.proximal-anchor`): at 2e-4 half of every batch fell outside the clip range."""
     from common.policy import PolicyConfig
-    from common.tasks.base import TaskConfig
-    from common.tasks.body_config import BodyConfig
-    from common.tasks.executor_config import ExecutorConfig
-    from common.tasks.executor_rewards import POSE_TERMS
+    from common.tasks.executor.presets import executor_task
     from learner.ppo import PPOConfig
 
-    ex = ExecutorConfig(
-        actuation="pd" if variant == "pd" else "torque",
-        pd_velocity_target=variant == "pd",
-        ankle_armature=0.1 if variant == "pd" else 0.01,
-        arm_armature=0.1 if variant == "pd" else 0.01,
-        termination="sum" if variant == "noterm" else "per_term",
-        reactive_init=variant != "norsis",
-        clip_draws="uniform" if variant == "uniform" else "balancer",
-        terminate_on=POSE_TERMS,
-        on_frame_share=0.5 if variant == "pd" else 0.0,
-    )
-    task = TaskConfig(name="executor", control_hz=60.0, sim_hz=240.0, episode_s=20.0,
-                      body=BodyConfig(parameterization="height_thickness", vary_shape=False), executor=ex)
     return RunConfig(
         name=f"executor-{variant}" if variant else "executor",
         total_env_steps=50_000_000,
@@ -226,7 +119,7 @@ def _executor_preset(variant: str = "") -> RunConfig:
         checkpoint_every=10,
         keep_checkpoints=100,
         vm_plot_every=0,
-        task=task,
+        task=executor_task(variant),
         policy=PolicyConfig(hidden=(256, 256, 256), init_log_std=-2.0, learn_log_std=False, final_log_std=-2.5,
                             log_std_anneal_steps=20_000_000),
         ppo=PPOConfig(gamma=0.95, epochs=5, minibatch=512, lr=5e-5, kl_coef=0.2, kl_stop=0.1, proximal_anchor=True),
@@ -235,11 +128,15 @@ def _executor_preset(variant: str = "") -> RunConfig:
     )
 
 
-for _variant, _vtext in {"": "torque, per-term termination, balancer, reactive initialization",
-                         "pd": "ablation: PD targets instead of torques", "noterm": "ablation: sum rule, no per-term termination",
-                         "uniform": "ablation: uniform clip draws, no balancer", "norsis": "ablation: no reactive initialization"}.items():
-    _cfg = _executor_preset(_variant)
-    PRESETS[_cfg.name] = (f"UniCon motion executor on the DeepMimic humanoid over its clip library; {_vtext}", _cfg)
+def _add_executor_presets() -> None:
+    from common.tasks.executor.presets import VARIANTS
+
+    for variant, vtext in VARIANTS.items():
+        cfg = _executor_preset(variant)
+        PRESETS[cfg.name] = (f"UniCon motion executor on the DeepMimic humanoid over its clip library; {vtext}", cfg)
+
+
+_add_executor_presets()
 PRESETS["executor-tiny"] = (
     "two iterations of the executor for smoke tests",
     dataclasses.replace(

@@ -28,7 +28,7 @@ import torch
 
 from common import device as devices
 from common.params import ParamError, ParamSpace
-from sampler.balancer import MotionBalancer
+from common.motion.balancer import MotionBalancer
 from sampler.clip_outcomes import ClipOutcomes
 from sampler.config import SamplerConfig
 from sampler.marginal_value import MarginalValue

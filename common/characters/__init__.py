@@ -13,12 +13,13 @@ from common.offscreen_gl import choose_offscreen_gl
 
 choose_offscreen_gl()  # NOTE: must precede the first `import mujoco` to take effect.
 
-from common.characters.character import DEFAULT_TIMESTEP_S, Character, CharacterFactory, list_presets, load_character
+from common.characters.character import (DEFAULT_TIMESTEP_S, Character, CharacterFactory, base_character, list_presets,
+                                        load_character)
 from common.characters.errors import ShapeError
 from common.characters.morph import morph
 from common.characters.shape_space import BodyPart, ShapeParam, ShapeSpace
 
 __all__ = [
-    "Character", "CharacterFactory", "load_character", "list_presets", "morph", "ShapeError", "ShapeSpace", "ShapeParam",
+    "Character", "CharacterFactory", "base_character", "load_character", "list_presets", "morph", "ShapeError", "ShapeSpace", "ShapeParam",
     "BodyPart", "DEFAULT_TIMESTEP_S",
 ]

@@ -272,3 +272,10 @@ def _compile(spec: mujoco.MjSpec, name: str) -> mujoco.MjModel:
 
 
 __all__ = ["Character", "CharacterFactory", "load_character", "list_presets", "build_base", "reshape", "FLOOR_NAME", "DEFAULT_TIMESTEP_S"]
+
+
+@functools.lru_cache(maxsize=None)
+def base_character(preset: str, timestep_s: float = DEFAULT_TIMESTEP_S) -> Character:
+    """The preset at its default shape, built once per process and (preset, timestep): the body
+    that clips are prepared on and the shape spaces are read from. Treat it as read-only."""
+    return load_character(preset, timestep_s=timestep_s)

@@ -10,13 +10,11 @@ side (`bend_side_bounds`), so the solution does not flip between frames.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
 
-if TYPE_CHECKING:
-    from common.motion.retarget import RetargetConfig
+from common.motion.retarget_config import RetargetConfig
 
 
 def _leg_dofs(model: mujoco.MjModel, body: int) -> np.ndarray:

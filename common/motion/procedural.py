@@ -12,7 +12,7 @@ reconstruction, every amplitude and frequency a keyword argument:
   wave outwards) and a twist a quarter cycle behind the flap, root moving forward.
 A swimmer's root speed is not free: it is what the stroke's thrust in MuJoCo's fluid gives the
 base body, and the policy is rewarded for tracking the stroke, so the speed is that of the stroke
-tracked closely: `common.tasks.stroke_speed` stiffens the base body's PD gains x30 (torque
+tracked closely: `common.tasks.shape.stroke_speed` stiffens the base body's PD gains x30 (torque
 limits kept, zero action; joints within 0.01 rad of the clip) and measures 5 to 20 s: fish 0.29,
 manta 0.41 m/s (`tests/common/motion/test_procedural.py` holds the clip within 10%). History:
 the clips first asked for 0.5 and 0.4 m/s while the strokes gave 0.07 (fish) and -0.20 m/s

@@ -103,3 +103,11 @@ def angular_velocity_local(q0: np.ndarray, q1: np.ndarray, dt_s: float) -> np.nd
     ball and free-joint angular velocities (local frame), and exact for slerp between frames.
     """
     return (rot(q0).inv() * rot(q1)).as_rotvec().reshape(np.shape(q0)[:-1] + (3,)) / dt_s
+
+
+def quat_angle(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
+    """Geodesic angle (rad, in [0, pi]) between unit quaternions (w, x, y, z), `[..., 4]` -> `[...]`."""
+    dot = np.abs(np.sum(np.asarray(q1) * np.asarray(q2), axis=-1))
+    # NOTE: minimum/maximum rather than np.clip: the same values, without np.clip's dispatch,
+    # which cost more than the arithmetic on these few quaternions.
+    return 2.0 * np.arccos(np.minimum(np.maximum(dot, 0.0), 1.0))

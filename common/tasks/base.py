@@ -17,8 +17,8 @@ import numpy as np
 from common.config_limits import Limit, between, check_limits, validated
 from common.params import ParamSpace
 from common.tasks.body_config import BodyConfig
-from common.tasks.executor_config import ExecutorConfig
-from common.tasks.imitate_config import ImitateConfig
+from common.tasks.executor.config import ExecutorConfig
+from common.tasks.shape.config import ImitateConfig
 
 
 @dataclass(frozen=True)

@@ -9,12 +9,12 @@ from common.tasks.base import Env, TaskConfig
 
 TASKS: dict[str, str] = {
     "reach": "common.tasks.reach:ReachEnv",
-    "lower_biped": "common.tasks.imitate:ImitateEnv",
-    "biped": "common.tasks.imitate:ImitateEnv",
-    "quadruped": "common.tasks.imitate:ImitateEnv",
-    "fish": "common.tasks.imitate:ImitateEnv",
-    "manta": "common.tasks.imitate:ImitateEnv",
-    "executor": "common.tasks.executor:ExecutorEnv",
+    "lower_biped": "common.tasks.shape.env:ImitateEnv",
+    "biped": "common.tasks.shape.env:ImitateEnv",
+    "quadruped": "common.tasks.shape.env:ImitateEnv",
+    "fish": "common.tasks.shape.env:ImitateEnv",
+    "manta": "common.tasks.shape.env:ImitateEnv",
+    "executor": "common.tasks.executor.env:ExecutorEnv",
 }
 
 

@@ -22,7 +22,7 @@ the effects are judged on the means, with each arm's range of fall-down rates be
         --workers 2 --out learner/pretrained/lower_biped-20M/ablation
 
 On motion executor checkpoints (task "executor") the UniCon ablation table is made instead
-(`learner/evaluation/executor_ablation.py`: options --clips, --starts, --workers, --out).
+(`learner/evaluation/executor/ablation.py`: options --clips, --starts, --workers, --out).
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ def describe(cfg) -> str:
 def _still_valid(res_file: Path, loaded: eval_core.Loaded, args: argparse.Namespace) -> bool:
     """Whether an earlier results.json measured this checkpoint by this protocol on the body this
     tree builds; a file that is not such a results.json is measured again, not trusted."""
-    from common.tasks.imitate import character_preset
+    from common.tasks.shape.env import character_preset
 
     imitate = loaded.cfg.task.imitate
     try:
@@ -271,7 +271,7 @@ def effects(rows: list[dict]) -> list[str]:
 
 def main(argv: list[str]) -> int:
     if eval_core.names_executor(argv, "--checkpoints"):
-        from learner.evaluation import executor_ablation
+        from learner.evaluation.executor import ablation as executor_ablation
 
         return executor_ablation.main(argv)
     p = argparse.ArgumentParser(prog="morphmimic ablation", description=__doc__,

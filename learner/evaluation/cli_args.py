@@ -116,8 +116,8 @@ def morph_schedule(text: str) -> list[tuple[float, dict[str, float]]]:
 
 def clip_source(text: str) -> str:
     """An executor clip to evaluate: a humanoid clip id, a clip file (.npz, .bvh, DeepMimic
-    .txt/.json) or a folder of `.npz` clips (`learner.evaluation.executor_eval.classify_clip_value`)."""
-    from learner.evaluation.executor_eval import ClipSelectionError, classify_clip_value
+    .txt/.json) or a folder of `.npz` clips (`learner.evaluation.executor.evaluate.classify_clip_value`)."""
+    from learner.evaluation.executor.evaluate import ClipSelectionError, classify_clip_value
 
     try:
         classify_clip_value(text)

@@ -28,7 +28,7 @@ from common.tasks.base import TaskConfig
 from common.tasks.registry import make_env
 from learner import checkpoint
 from learner.config import RunConfig
-from learner.evaluation.swim_metrics import SwimTracker, summarize_swim
+from learner.evaluation.shape.swim_metrics import SwimTracker, summarize_swim
 
 
 @dataclass(frozen=True)
@@ -69,7 +69,7 @@ def load(path: str | Path) -> Loaded:
     try:
         cfg = RunConfig.from_json(str(state["config"]))
         if cfg.task.name == "executor":  # its named clips must play on the humanoid
-            from common.tasks.executor import labelled_clips
+            from common.tasks.executor.env import labelled_clips
 
             labelled_clips(cfg.task)
     except ValueError as exc:

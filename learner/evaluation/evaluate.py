@@ -13,7 +13,7 @@ Vm), `summary.md` (with the falls counted by body), `map_return.png`
 from the checkpoint), `best.png` / `worst.png` strips (and GIFs with `--gif`).
 
 A motion executor checkpoint (task "executor", or the options --clips / --starts) is evaluated
-per clip instead: `learner/evaluation/executor_report.py` (UniCon's protocol, METHOD.md B "Evaluation").
+per clip instead: `learner/evaluation/executor/report.py` (UniCon's protocol, METHOD.md B "Evaluation").
 """
 
 from __future__ import annotations
@@ -32,7 +32,9 @@ from pathlib import Path
 import numpy as np
 
 from common.motion.root_height import ROOT_HEIGHT_RULES
-from learner.evaluation import cli_args, eval_core, eval_plots, swim_metrics
+from learner.evaluation import cli_args, eval_core
+from learner.evaluation.shape import plots as eval_plots
+from learner.evaluation.shape import swim_metrics
 
 
 def parse(argv: list[str]) -> argparse.Namespace:
@@ -60,7 +62,7 @@ def parse(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--bins", type=cli_args.positive_int, default=6, help="cells per axis of the return map")
     p.add_argument("--no-render", action="store_true", help="skip the best/worst strips")
     p.add_argument("--gif", action="store_true", help="also write GIFs of the best and worst shapes")
-    p.add_argument("--morph", action="store_true", help="run the morph demo (learner.evaluation.morph_demo) instead")
+    p.add_argument("--morph", action="store_true", help="run the morph demo (learner.evaluation.shape.morph_demo) instead")
     p.add_argument("--strength", type=cli_args.finite_float, default=None,
                    help="with --morph: scale of the morph's deviation from the base shape (morph_demo's default: 1)")
     return p.parse_args(argv)
@@ -177,12 +179,12 @@ _NOT_MORPH = ("shapes", "seed", "episode_s", "workers", "box_scale", "map_params
 
 def main(argv: list[str]) -> int:
     if eval_core.names_executor(argv, "--checkpoint"):
-        from learner.evaluation import executor_report
+        from learner.evaluation.executor import report as executor_report
 
         return executor_report.main(argv)
     args = parse(argv)
     if args.morph:
-        from learner.evaluation import morph_demo
+        from learner.evaluation.shape import morph_demo
 
         defaults = vars(parse(["--checkpoint", args.checkpoint]))
         ignored = [f"--{k.replace('_', '-')}" for k in _NOT_MORPH if getattr(args, k) != defaults[k]]

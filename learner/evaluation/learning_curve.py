@@ -31,7 +31,9 @@ import numpy as np  # noqa: E402
 
 from learner import checkpoint
 
-from learner.evaluation import cli_args, eval_core, executor_curve  # noqa: E402
+from learner.evaluation import cli_args, eval_core  # noqa: E402
+
+from learner.evaluation.executor import curve as executor_curve
 
 
 def main(argv: list[str]) -> int:

@@ -99,7 +99,7 @@ def make_session(args: argparse.Namespace) -> tuple[LiveSession, Any]:
         if session.kind != "executor":
             raise ValueError(f"--scheduler {args.scheduler}: schedulers drive the executor; "
                              f"{session.loaded.name} is a shape controller that follows its own clip")
-        from common.tasks.scheduler_factory import make_scheduler
+        from common.tasks.executor.schedulers.factory import make_scheduler
 
         options = {"stitch": {"clips": tuple(args.stitch)}, "keyboard": {"script": tuple(args.keys)},
                    "video": {"host": args.video_host, "port": args.video_port}}.get(args.scheduler, {})
@@ -147,7 +147,7 @@ def render_video(session: LiveSession, path: Path, seconds: float, speed: float,
     """Write `seconds` of simulation at `speed` to an H.264 MP4 of `fps`; returns the frame count."""
     import imageio.v2 as imageio
 
-    from learner.evaluation.eval_plots import FollowRenderer
+    from learner.evaluation.shape.plots import FollowRenderer
 
     frames = int(round(seconds / speed * fps))
     dt = session.env.dt

@@ -39,7 +39,7 @@ BODY_PRESETS: tuple[tuple[str, dict[str, float]], ...] = (
     ("long legs", {"leg_length": 1.5}), ("short legs", {"leg_length": 0.6}), ("long arms", {"arm_length": 1.5}),
     ("bigger", {"scale": 1.4}), ("smaller", {"scale": 0.6}),
 )
-"""Won & Lee 2019 Figure 1's bodies by parameter name (`learner.evaluation.morph_demo.SCHEDULES`' keyframes);
+"""Won & Lee 2019 Figure 1's bodies by parameter name (`learner.evaluation.shape.morph_demo.SCHEDULES`' keyframes);
 a parameterization offers those whose parameters it has."""
 PUSH_MOMENTUM_NS = 20.0
 """A shape controller's stand-in for a projectile: the executor's 2 kg ball at 10 m/s."""

@@ -335,7 +335,7 @@ def keyboard_styles() -> list[str]:
     """The keyboard scheduler's style names (walk, run, ...), or just walk and run when the
     schedulers are not in this checkout."""
     try:
-        from common.tasks.scheduler_keyboard import locomotion_styles
+        from common.tasks.executor.schedulers.keyboard import locomotion_styles
 
         return list(locomotion_styles()) or ["walk", "run"]
     except Exception:  # noqa: BLE001 - the panel still opens; choosing a style reports the problem

@@ -285,9 +285,9 @@ class StudioCore:
         if s.kind != "executor":
             raise ValueError(f"schedulers drive the executor; {s.loaded.name} is a shape controller that follows its own clip")
         try:
-            from common.tasks.scheduler_factory import make_scheduler
+            from common.tasks.executor.schedulers.factory import make_scheduler
         except ImportError as exc:
-            raise ValueError(f"the schedulers are not available in this checkout (common.tasks.scheduler_factory: {exc})") from None
+            raise ValueError(f"the schedulers are not available in this checkout (common.tasks.executor.schedulers.factory: {exc})") from None
         if name == "video":
             options = {"host": "127.0.0.1", "port": 0, **options}
         scheduler = make_scheduler(name, s.env, **options)

@@ -16,7 +16,7 @@ from tests.learner.evaluation.executor_checkpoints import tiny_executor
 
 
 def _pair(seed: int = 3, velocity_target: bool = True):
-    from common.tasks.executor import ExecutorEnv
+    from common.tasks.executor.env import ExecutorEnv
 
     preset = PRESETS["executor-pd"][1].task
     pd_task = dataclasses.replace(preset, executor=dataclasses.replace(preset.executor, pd_velocity_target=velocity_target))

@@ -13,7 +13,7 @@ import dataclasses
 import pytest
 
 from common.policy import GaussianPolicy
-from common.tasks.executor_rewards import TERMS
+from common.tasks.executor.rewards import TERMS
 from common.tasks.registry import make_env
 from learner import checkpoint
 from learner.presets import PRESETS

@@ -198,7 +198,7 @@ def test_adaptive_clip_sampling_counts_the_executors_segments_end_to_end(tmp_pat
     """`--sampler.clip-k`: the environments' clip segments travel in the unrolls to the learner,
     with its value report to the sampler, and reweight the balancer; the counts are in the
     checkpoint's sampler state and the draws a restored sampler makes follow them."""
-    from common.tasks.executor import labelled_clips
+    from common.tasks.executor.env import labelled_clips
     from sampler.shape_sampler import ShapeSampler, state_from_torch
 
     base = PRESETS["executor-tiny"][1]

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from sampler.balancer import MotionBalancer
+from common.motion.balancer import MotionBalancer
 from sampler.clip_outcomes import ClipOutcomes
 from sampler.config import SamplerConfig
 from sampler.shape_sampler import ShapeSampler

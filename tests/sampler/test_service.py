@@ -12,7 +12,7 @@ from common import sockets, wire
 from common.params import ParamSpace
 from common.rpc import ServiceUnavailable
 from sampler.actor import start_in_thread
-from sampler.balancer import load_clip_labels
+from common.motion.balancer import load_clip_labels
 from sampler.client import SamplerClient
 from sampler.config import SamplerConfig
 

@@ -10,7 +10,7 @@ from scipy import stats
 
 from common import wire
 from common.params import ParamError, ParamSpace
-from sampler.balancer import load_clip_labels
+from common.motion.balancer import load_clip_labels
 from sampler.config import SamplerConfig
 from sampler.shape_sampler import ShapeSampler, state_from_torch, state_to_torch
 

@@ -69,8 +69,8 @@ def test_a_swimmers_clip_asks_for_the_speed_its_stroke_gives_when_tracked(preset
     gains by tracking the stroke is speed the reference asks for, not speed that ends the
     episode. (Before: the clips asked for the x1 speed, 0.17 and 0.28 m/s, and trained swimmers
     outswam them.)"""
-    from common.tasks import references
-    from common.tasks.stroke_speed import stroke_speed
+    from common.tasks.shape import references
+    from common.tasks.shape.stroke_speed import stroke_speed
 
     tracked, lagging = stroke_speed(preset), stroke_speed(preset, gain_scale=1.0)
     assert tracked.joint_error_rad < 0.015
@@ -82,7 +82,7 @@ def test_a_swimmers_clip_asks_for_the_speed_its_stroke_gives_when_tracked(preset
 
 
 def test_stroke_speed_refuses_what_it_cannot_measure():
-    from common.tasks.stroke_speed import main, stroke_speed
+    from common.tasks.shape.stroke_speed import main, stroke_speed
 
     with pytest.raises(ValueError, match="'quadruped' is not a swimmer"):
         stroke_speed("quadruped")

@@ -241,7 +241,7 @@ def test_contact_smooth_and_the_clearance_lift_on_the_mass_walk():
         step[rule] = np.abs(np.diff(q[:, 2])).max()
         h, _ = foot_heights(env.model, q, tuple(env.character.foot_geoms))
         assert h.min() > -0.01, rule
-    from common.tasks import references
+    from common.tasks.shape import references
 
     flags = references.task_clip("lower_biped", env.clip_id, env.timestep_s)[1].flags
     assert np.abs(h[flags]).max() < 0.01  # contact_smooth: the stance feet on the floor

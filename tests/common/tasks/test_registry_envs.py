@@ -8,7 +8,7 @@ import pytest
 
 from common.tasks.base import TaskConfig
 from common.tasks.body_config import BodyConfig
-from common.tasks.imitate_config import ImitateConfig
+from common.tasks.shape.config import ImitateConfig
 from common.tasks.registry import TASKS, make_env, task_clips, task_space
 
 SHAPE_TASKS = [name for name in TASKS if name != "reach"]

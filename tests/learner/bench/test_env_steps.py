@@ -9,7 +9,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from common.tasks.executor_obs import _cross
+from common.tasks.executor.observations import _cross
 from learner.bench import env_steps
 
 

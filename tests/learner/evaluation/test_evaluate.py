@@ -379,7 +379,8 @@ def test_an_arms_mean_row_averages_its_checkpoints_and_says_whether_arms_are_apa
 
 
 def test_morph_demo_changes_the_body_during_the_episode(tmp_path: Path) -> None:
-    from learner.evaluation import eval_core, morph_demo
+    from learner.evaluation import eval_core
+    from learner.evaluation.shape import morph_demo
 
     _tiny_checkpoint(tmp_path, "tiny")
     schedule = [(0.0, {}), (0.3, {"global_z": 1.3})]
@@ -430,7 +431,7 @@ def test_bad_map_params_fail_before_any_episode_and_a_render_failure_keeps_the_r
     ('[[0, {"global_z": "tall"}]]', "global_z = 'tall' must be a finite number"),
 ])
 def test_bad_morph_schedules_are_usage_errors(bad: str, says: str, capsys) -> None:
-    from learner.evaluation import morph_demo
+    from learner.evaluation.shape import morph_demo
 
     with pytest.raises(SystemExit) as exc:
         morph_demo.main(["--checkpoint", "no/such/checkpoint", "--schedule", bad])
@@ -466,7 +467,8 @@ def test_shipped_controller_stays_up_through_a_moderate_morph(name: str, strengt
     lower_biped is not good enough (it falls within about 2 s even without a morph);
     lower_biped-curriculum, trained on the old reference and MASS's shank box, falls at half
     strength on the slimmer shank (4.9 s), not at 0.3 (its README)."""
-    from learner.evaluation import eval_core, morph_demo
+    from learner.evaluation import eval_core
+    from learner.evaluation.shape import morph_demo
 
     result = morph_demo.run_morph(eval_core.load(PRETRAINED / name), strength=strength)
     assert result["morphs"] > 10

@@ -150,7 +150,8 @@ def test_an_executor_runs_curve_is_its_success_per_split_and_grows_by_its_new_ch
     """An executor run's curve: UniCon's success per split per checkpoint, the same figures as
     `morphmimic evaluate` on that checkpoint; a later call measures only the new checkpoint,
     and a shape controller's curve.json in --out is refused, not overwritten."""
-    from learner.evaluation import eval_core, executor_eval as xe, learning_curve
+    from learner.evaluation import eval_core, learning_curve
+    from learner.evaluation.executor import evaluate as xe
     from learner.learner import Learner
     from tests.learner.evaluation.executor_checkpoints import tiny_executor
 

@@ -168,7 +168,7 @@ def test_the_executor_loads_from_the_dropdown_and_is_steered(studio) -> None:
     assert wait_for(lambda: studio.scene.model is core.session.env.model, 5.0)  # the 3-D view shows the humanoid
     core.set_shape({"height": 1.0})
     assert wait_for(lambda: core.errors == errors + 1, 5.0) and "cannot change shape" in core.message
-    pytest.importorskip("common.tasks.scheduler_factory", reason="the schedulers are not in this checkout")
+    pytest.importorskip("common.tasks.executor.schedulers.factory", reason="the schedulers are not in this checkout")
     gui.keys.value = "left"  # a click on the keyboard button group: switches to the keyboard scheduler
     assert wait_for(lambda: core.message == "keyboard: left", 5.0), core.message
     assert core.scheduler_name == "keyboard"

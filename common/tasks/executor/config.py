@@ -1,0 +1,171 @@
+"""`ExecutorConfig`: the settings of UniCon's motion executor task (METHOD.md B), kept apart from
+the shape tasks' fields; `TaskConfig.executor` carries it (`--task.executor.tau 2`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar, Literal
+
+from common.config_limits import Limit, above, at_least, between, check_limits, validated
+from common.tasks.executor.rewards import TERMS
+
+
+@dataclass(frozen=True)
+@validated
+class ExecutorConfig:
+    clips: tuple[str, ...] = ()
+    """Clip ids to track (empty: the `split` of every clip that plays on the humanoid,
+    `common.motion.library.clips_for`)."""
+    split: Literal["train", "test", "all"] = "train"
+    """Which part of UniCon's category-aware 80/20 split (by frames, rare classes to test first)
+    the task trains on when `clips` is empty."""
+    split_seed: int = 0
+    """Seed of the split (`common.motion.manifest.unicon_split`)."""
+    mirror: bool = False
+    """Also track every clip's left-right mirror image (`<id>~mirror`: the other hand and foot,
+    turning the other way; `common.motion.mirror`), with its source's label and on its source's
+    side of the split: twice the motions to learn from, none of them held out."""
+    clip_draws: Literal["balancer", "uniform"] = "balancer"
+    """balancer: clips are drawn by walking the class tree (UniCon 5.1, eq. 8); uniform: every
+    clip equally likely (the ablation: the task relabels its clips so the balancer is flat)."""
+    tau: int = 1
+    """Target frames in the observation: X_t+1 .. X_t+tau (UniCon: 1)."""
+    actuation: Literal["torque", "pd"] = "torque"
+    """torque: the action is a torque per DOF, a in [-1, 1] times that DOF's effort factor
+    (UniCon); pd: the action is a deviation from the next target frame's joint angles, tracked by
+    the humanoid's PD (DeepMimic's gains), for the comparison."""
+    effort_scale: float = 1.0
+    """Multiplies every DOF's effort factor (`executor.EFFORT_70KG_NM` scaled to the body's mass)."""
+    passive_damping: float = 0.1
+    """torque: passive joint damping as a fraction of each joint's DeepMimic PD kd (hip 5,
+    neck 1 N m s/rad at 0.1), integrated implicitly by MuJoCo. Measured: with none, random
+    torques (std 0.37) diverged the simulation in 20 of 20 episodes within 4-10 control steps
+    (ball joints have no limits and nothing takes energy out); 0.05: 4 of 20; 0.1: 0 of 20."""
+    pd_action_scale: float = 0.5
+    """pd: rad of PD-target deviation per unit action."""
+    pd_velocity_target: bool = False
+    """pd: the PD's damping term tracks the next target frame's joint velocity, tau = kp (q~ - q)
+    + kd (qdot~ - qdot), instead of pulling every joint toward rest, kd (0 - qdot) (DeepMimic's and
+    MuJoCo's position actuator). Done by moving the position target by (kd / kp) qdot~, so the
+    actuators are unchanged. Measured (the humanoid's PD on the reference with no policy, 24
+    clips x 10 starts on the tracked frame): pose success 11.9 -> 18.8% on the train split and
+    8.8 -> 20.0% on the held-out split; the lag it removes broke the fast clips within 5-10
+    control steps (a dance's shoulder 0.6 rad behind after 8 steps, `docs/executor.md`)."""
+    joint_velocity: Literal["instant", "step_mean"] = "instant"
+    """What the joint-velocity term compares with the target frame's joint velocities (themselves
+    a central difference of the clip's frames, `common.motion.reference`): instant, the
+    simulator's joint velocities at the end of the control step (as UniCon writes it); step_mean,
+    the mean over the control step, `mj_differentiatePos` of the joint angles before and after
+    it, which leaves out the oscillation within the step of a joint pushed against its actuator's
+    force limit. Measured on the shipped PD executor (49.6 M steps, 24 clips x 10 starts):
+    train-split success 7.5% with step_mean against 10.6% with instant, so the default stays
+    (`docs/executor.md`, "The joint-velocity term": the feet carry most of the error)."""
+    target_velocity_window: int = 1
+    """The target frames' joint velocities (reward, observation and the PD's target velocity) are
+    differences of the clip over +-this many control steps (1: +-1/60 s at 60 Hz; UniCon does not
+    say). On fast clips the +-1 and +-3 step differences of the reference alone differ by more
+    than the velocity term's tolerance on a quarter to two thirds of the steps; the shipped PD
+    executor evaluated with 3 tracks 20.0% of its train starts by UniCon's rule against 10.6%
+    with 1, at the same pose success (`docs/executor.md`, "The joint-velocity term")."""
+    ankle_armature: float = 0.01
+    """Rotor inertia (kg m^2) of each ankle DOF (the builder gives every actuated DOF 0.01,
+    `common.characters.builder.ARMATURE_KG_M2`). A foot in the air is light (0.0033 kg m^2 about
+    its twist axis): whenever its PD asks for more than the 90 N m force limit, the clamped force
+    is constant, MuJoCo's implicit integration no longer damps it, and the foot's velocity flips
+    sign from one substep to the next; the instant velocity the joint-velocity term reads is then
+    noise. On the shipped PD executor (24 clips x 10 starts) the ankles' squared velocity error
+    averaged 9-21 (rad/s)^2 per DOF with the foot in the air against 1-6 on the floor, and 0.1
+    raised UniCon's five-term success from 10.6 / 1.2% to 14.4 / 6.2% train / test with no
+    retraining (`docs/executor.md`, "The ankles' chatter in the air")."""
+    arm_armature: float = 0.01
+    """Rotor inertia (kg m^2) of each shoulder and elbow DOF, for the same reason as
+    `ankle_armature` (an arm is light and its PD often at the limit). With both at 0.1 the shipped
+    PD executor's five-term success was 20.0 / 7.5% train / test with no retraining (14.4 / 6.2%
+    with the ankles alone)."""
+    termination: Literal["per_term", "sum", "none"] = "per_term"
+    """per_term: end the episode as soon as any of the five reward terms falls below `alpha`
+    (UniCon's constrained objective, eq. 6); sum: only when the weighted sum falls below `alpha`
+    (the ablation); none: only the time limit and simulator divergence end it."""
+    terminate_on: tuple[str, ...] = TERMS
+    """per_term: the terms the rule watches (UniCon: all five; the executor presets leave out
+    joint_velocity, which stays in the reward: see `learner.presets._executor_preset`)."""
+    alpha: float = 0.1
+    """Tolerance of the termination rule (UniCon: 0.1 for every term)."""
+    reward_weights: tuple[float, float, float, float, float] = (0.2, 0.2, 0.1, 0.4, 0.1)
+    """w_pr, w_qr, w_pj, w_qj, w_wj (UniCon eq. 5)."""
+    reward_scales: tuple[float, float, float, float, float] = (10.0, 2.0, 40.0, 2.0, 0.1)
+    """Kernel scales k of exp(-k err): COM position (DeepMimic 10), root rotation (UniCon 2),
+    joint positions (DeepMimic's 40 per four end effectors, see `unicon_rewards`), joint
+    rotations (DeepMimic 2), joint velocities (DeepMimic 0.1)."""
+    reactive_init: bool = True
+    """Reactive state initialization (UniCon 5.2): start `rsis_frames` control steps away from
+    the tracked frame with noise on root translation and velocities; off: start on the tracked
+    frame exactly (DeepMimic's reference state initialization)."""
+    rsis_frames: tuple[int, int] = (5, 10)
+    """Range of the frame offset of reactive initialization, in control steps (either side)."""
+    rsis_translation_m: float = 0.1
+    """Reactive initialization: the root starts up to this far (horizontally, uniform in a disc)
+    from the frame's root."""
+    rsis_velocity_std: float = 0.5
+    """Reactive initialization: Gaussian noise (m/s on the root, rad/s on every other DOF)."""
+    catch_up_steps: int = 30
+    """Training: the termination rule is suspended for this many control steps after an episode
+    starts and after a reschedule (0: never, UniCon as written). A reconstruction: UniCon says
+    a 5-10 step offset "does not lead to early termination", but measured here every start
+    broke a term at once: the offset itself puts r_pj below 0.1 (10 frames into a cartwheel),
+    and from the tracked frame exactly a zero-torque body breaks r_wj in one step (40 of 40
+    starts). With a grace of only the offset, a run's first 0.6 M steps ended every episode on
+    the step after the grace (60 of 60), leaving nothing to learn beyond it; 30 steps (0.5 s)
+    let the dense reward teach tracking first. Evaluation applies the rule from the first step."""
+    on_frame_share: float = 0.0
+    """Training: the share of episode starts placed on the tracked frame exactly, without noise
+    and with the rule from the first step, as the evaluation starts its episodes; the other
+    starts use `reactive_init` and the `catch_up_steps` wait (0: every start as those say).
+    Reschedules at a clip's end are unchanged. Measured (learner/pretrained/executor/ablation-mixed-starts, 9.6 -> 12.3 M steps, one seed):
+    0.5 against 0 gained 3.3 points of train and 1.5 of held-out success by UniCon's rule, 5.9 and 2.5
+    of pose success, and lost 2.3 points of relative performance against a projectile every 20 steps."""
+    catch_up_ends: Literal["after_steps", "on_track"] = "after_steps"
+    """When the wait of `catch_up_steps` ends: after_steps, always after that many control steps;
+    on_track, also at the first step on which every watched term is at or above `alpha` (the
+    character has caught up; from then on the rule applies, as UniCon's would). Measured on the
+    PD executor at 9.8 M steps (200 training episodes, stochastic actions): 86% of starts were
+    on track within the wait (median: from the first step) and then lost it after a median of
+    17 steps, still inside the wait; 52% of the episodes ended on the wait's last step, so about
+    a third of all training steps came from states the rule would already have ended."""
+    at_clip_end: Literal["reschedule", "stop"] = "reschedule"
+    """What the dataset scheduler does when a clip's end is reached: reschedule a random clip
+    and frame (training), or stop, which truncates the episode (evaluation)."""
+    speed: float = 1.0
+    """Playback speed of the target frames (robustness: 0.4 .. 1.6)."""
+    projectile: bool = False
+    """Add a projectile body to the scene (robustness); parked out of the way until thrown."""
+
+
+    FLAG_PREFIX: ClassVar[str] = "task.executor"
+    LIMITS: ClassVar[dict[str, Limit]] = {
+        "split_seed": at_least(0), "tau": between(1, 60, integer=True), "effort_scale": between(0, 100, lo_open=True),
+        "passive_damping": between(0, 100), "pd_action_scale": between(0, 10, lo_open=True), "alpha": between(0, 1, lo_open=True, hi_open=True),
+        "reward_weights": at_least(0, False), "reward_scales": above(0), "rsis_frames": at_least(0),
+        "rsis_translation_m": at_least(0, False), "rsis_velocity_std": at_least(0, False), "catch_up_steps": at_least(0),
+        "on_frame_share": between(0, 1),
+        "speed": between(0.05, 10), "ankle_armature": between(0, 10), "arm_armature": between(0, 10),
+        "target_velocity_window": between(1, 30, integer=True),
+    }
+    """Allowed values of the numeric fields (`common.config_limits`)."""
+
+    def validate(self) -> None:
+        """ValueError naming the first value outside what is allowed."""
+        check_limits(self)
+        if len(self.rsis_frames) != 2:
+            raise ValueError(f"--task.executor.rsis-frames = {self.rsis_frames} is not allowed: give two integers, low high")
+        lo, hi = self.rsis_frames
+        if not lo <= hi:
+            raise ValueError(f"--task.executor.rsis-frames = {self.rsis_frames} must be low <= high")
+        bad = [t for t in self.terminate_on if t not in TERMS]
+        if bad or not self.terminate_on or len(set(self.terminate_on)) != len(self.terminate_on):
+            raise ValueError(f"--task.executor.terminate-on = {self.terminate_on}: give one or more distinct terms of "
+                             f"{', '.join(TERMS)}")
+        if len(self.reward_weights) != 5 or len(self.reward_scales) != 5:
+            raise ValueError("--task.executor.reward-weights and --task.executor.reward-scales take 5 values each")
+        if not sum(self.reward_weights) > 0:
+            raise ValueError(f"--task.executor.reward-weights = {self.reward_weights}: give at least one weight > 0")

@@ -1,0 +1,527 @@
+"""`ExecutorEnv`: UniCon's low-level motion executor (Wang et al. 2020; METHOD.md B) on the
+DeepMimic humanoid, over a whole clip library.
+
+- Targets come from a `Scheduler` (`schedulers.py`); training uses the `DatasetScheduler`: the
+  clip the sampler's motion balancer drew for the episode, from a random frame, rescheduled to
+  another balanced draw at the clip's end (`ExecutorConfig.at_clip_end`).
+- Observation: s_t = [shape params, o(X_now), o(X~_t+1), y(X~_t+1), ... up to tau]
+  (`executor_obs.py`): agent-centric, unchanged by where the character stands or faces.
+- Action (`ExecutorConfig.actuation`): torques, a in [-1, 1] per DOF times its effort factor
+  (`EFFORT_70KG_NM`, UniCon's 50-600 N m for its 70 kg humanoid, scaled by mass to this one);
+  or PD targets q~_t+1 + scale a with the humanoid's DeepMimic gains, for the comparison.
+- Reward and termination (`executor_rewards.py`): the five terms with UniCon's weights; the
+  episode ends as soon as any term is below alpha = 0.1 (switchable), on simulator divergence,
+  and is truncated at the time limit or when a stopping scheduler runs out.
+- Reactive state initialization (UniCon 5.2): the character starts 5-10 control steps away from
+  the tracked frame with noise on root translation and velocities (switchable). In training the
+  termination rule waits `catch_up_steps` (30) control steps after a start or a reschedule (a
+  reconstruction, see `ExecutorConfig.catch_up_steps`), or, with `catch_up_ends = "on_track"`,
+  until every watched term is back above alpha; evaluation applies it from the start.
+- 60 Hz control with 4 substeps (240 Hz physics), as UniCon (`executor` preset).
+
+The humanoid's shape parameters are the episode parameters (collapsed to the base shape while
+the executor trains on one body, so the observation layout already has them): Won & Lee's
+shape variation joins by widening that box.
+
+Robustness hooks (zero-shot tests, UniCon 8.5): `scale_mass` makes the body heavier or lighter,
+`throw_projectile` throws the next of the optional projectile balls (`ExecutorConfig.projectile`) at it.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import mujoco
+import numpy as np
+
+from common.characters import base_character, load_character
+from common.characters.mass import scale_body_mass
+from common.characters.morph import lift_out_of_floor
+from common.motion.library import MotionLibrary
+from common.motion.manifest import Manifest, load_manifest, unicon_split
+from common.motion.mirror import MIRROR_SUFFIX, mirrored_id, source_id
+from common.motion.reference import CharacterMotion
+from common.params import ParamSpace
+from common.tasks.executor import rewards as rw
+from common.tasks.base import TaskConfig, step_physics
+from common.tasks.executor.observations import BodyKin, observation, read_kinematics
+from common.tasks.observations import JointLayout
+from common.tasks.executor.schedulers.base import DatasetScheduler, Scheduler, TargetFrame
+from common.motion.balancer import MotionBalancer
+
+CHARACTER = "humanoid"
+EFFORT_70KG_NM = {
+    "chest": 600.0, "neck": 100.0, "hip": 600.0, "knee": 400.0, "ankle": 300.0, "shoulder": 300.0, "elbow": 150.0,
+}
+"""Effort factor (N m per unit action) of each joint's DOF for a 70 kg humanoid, within UniCon's
+range of 50-600 (7.2: the paper gives the range, not the table, so the split is a
+reconstruction: strongest at hips and trunk, weakest at the neck and elbows). The task scales
+them by body mass / 70 kg (45 kg: 386 N m at the hips, 64 N m at the neck), 1.6-2.1x the
+DeepMimic PD torque limits of the same joints."""
+UNICON_MASS_KG = 70.0
+PROJECTILE = {"mass_kg": 2.0, "radius_m": 0.08}
+"""The projectile of the robustness test: a 2 kg ball, 16 cm across (see `throw_projectile`)."""
+PROJECTILES = 24
+"""Balls in a scene built with `ExecutorConfig.projectile`, thrown in turn, so one can be thrown
+every control step although each flies for about 12 steps (2 m at 10 m/s, 60 Hz)."""
+MAX_UNDRAINED_SEGMENTS = 4096
+"""Clip segments an environment keeps for `drain_segments`; older ones are dropped when nobody drains."""
+PROJECTILE_LIFE_STEPS = 60
+"""A thrown ball is parked again this many control steps (1 s) after its throw."""
+PARKED = np.array([0.0, 0.0, -50.0])
+"""Where parked balls wait: below the floor, weightless (gravcomp) and without contacts."""
+
+
+@functools.lru_cache(maxsize=None)
+def _manifest() -> Manifest:
+    return load_manifest()
+
+
+def humanoid_clips(mirror: bool = False) -> list[tuple[str, str]]:
+    """(clip_id, label) of every manifest clip that plays on the humanoid as it is; with `mirror`,
+    each followed by its left-right mirror image (`<id>~mirror`, the same label; mirror.py)."""
+    from common.motion.library import clips_for
+
+    pairs = list(clips_for(CHARACTER, _manifest()))
+    return _with_mirrors(pairs) if mirror else pairs
+
+
+def _with_mirrors(pairs: list[tuple[str, str]]) -> list[tuple[str, str]]:
+    return [p for c, label in pairs for p in ((c, label), (mirrored_id(c), label))]
+
+
+def executor_clips(cfg: TaskConfig) -> list[tuple[str, str]]:
+    """(clip_id, label) the task tracks: `cfg.executor.clips`, else the configured split; with
+    `clip_draws="uniform"` every label is "root/all", so the motion balancer draws uniformly."""
+    pairs = labelled_clips(cfg)
+    if cfg.executor.clip_draws == "uniform":
+        return [(c, "root/all") for c, _ in pairs]
+    return pairs
+
+
+def labelled_clips(cfg: TaskConfig) -> list[tuple[str, str]]:
+    """(clip_id, manifest label) the task tracks (see `executor_clips`). The split is drawn over
+    the manifest's clips; with `mirror` each clip's mirror image joins it on its side, so a
+    held-out motion is never learnt through its mirror. Named clips may be mirrored ids."""
+    ex = cfg.executor
+    plain = humanoid_clips()
+    if ex.clips:
+        labels = dict(_with_mirrors(plain))
+        unknown = [c for c in ex.clips if c not in labels]
+        if unknown:
+            raise ValueError(f"clips {unknown} do not play on the humanoid; choose from: {', '.join(c for c, _ in plain)} "
+                             f"(each also as <id>{MIRROR_SUFFIX}, its mirror image)")
+        named = list(ex.clips)
+        if ex.mirror:
+            named += [mirrored_id(c) for c in ex.clips if mirrored_id(c) not in named]
+        return [(c, labels[c]) for c in named]
+    every = _with_mirrors(plain) if ex.mirror else plain
+    if ex.split == "all":
+        return every
+    manifest = _manifest()
+    sub = Manifest(tuple(manifest.by_id(c) for c, _ in plain))
+    split = unicon_split(sub, seed=ex.split_seed)
+    keep = set(split.train if ex.split == "train" else split.test)
+    return [(c, lab) for c, lab in every if source_id(c) in keep]
+
+
+def torque_actuation(model: mujoco.MjModel, efforts: np.ndarray) -> None:
+    """Turn every actuator of `model` into a motor: force = effort * ctrl, ctrl in [-1, 1],
+    no stiffness or damping (the policy owns them), in place. efforts `[nu]` N m."""
+    model.actuator_gaintype[:] = mujoco.mjtGain.mjGAIN_FIXED
+    model.actuator_biastype[:] = mujoco.mjtBias.mjBIAS_NONE
+    model.actuator_gainprm[:] = 0.0
+    model.actuator_gainprm[:, 0] = efforts
+    model.actuator_biasprm[:] = 0.0
+    model.actuator_ctrlrange[:] = [-1.0, 1.0]
+    model.actuator_ctrllimited[:] = 1
+    model.actuator_forcerange[:, 0] = -efforts
+    model.actuator_forcerange[:, 1] = efforts
+    model.actuator_forcelimited[:] = 1
+
+
+def passive_damping(model: mujoco.MjModel, fraction: float) -> None:
+    """Set each actuated DOF's joint damping to `fraction` x its DeepMimic PD kd, in place
+    (see `ExecutorConfig.passive_damping` for why torque control needs it)."""
+    from common.characters.presets.humanoid import GAINS
+
+    for a in range(model.nu):
+        j = int(model.actuator_trnid[a, 0])
+        width = 3 if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_BALL else 1
+        dof = int(model.jnt_dofadr[j])
+        model.dof_damping[dof : dof + width] = fraction * GAINS[model.joint(j).name.split("_")[-1]][1]
+
+
+def set_armature(spec: mujoco.MjSpec, part: str, armature: float) -> None:
+    """Set the rotor inertia `armature` (kg m^2) of the joints whose last name word is `part`
+    (`ankle`: both ankles, every DOF of each) in a spec before it compiles, so that what MuJoCo
+    derives from it at compile time agrees; ValueError when no joint is one (see
+    `ExecutorConfig.ankle_armature` for why the ankles need more than the builder's)."""
+    joints = [j for j in spec.joints if j.name.split("_")[-1] == part]
+    if not joints:
+        raise ValueError(f"no {part!r} joint in this model to set the armature of")
+    for joint in joints:
+        joint.armature = armature
+
+
+def pd_lead_s(model: mujoco.MjModel) -> np.ndarray:
+    """kd / kp `[nu]` (s) of the PD's position actuators (gain kp, bias -kp q - kd qdot)."""
+    return -model.actuator_biasprm[:, 2] / model.actuator_gainprm[:, 0]
+
+
+def pd_target(layout: JointLayout, frame: TargetFrame, lead_s: np.ndarray | None = None) -> np.ndarray:
+    """The PD targets `[nu]` of a zero action: the frame's joint angles (ball joints as rotation
+    vectors); with `lead_s` (`pd_lead_s`, the `pd_velocity_target` switch) plus the frame's joint
+    velocities times kd / kp, which turns the actuators' damping kd (0 - qdot) into
+    kd (qdot~ - qdot): the PD with a target velocity (Tan et al. 2011); DeepMimic's has none."""
+    target = layout.to_vector(frame.qpos)
+    if lead_s is not None:
+        target = target + lead_s * frame.qvel[6 : 6 + len(lead_s)]
+    return target
+
+
+def effort_factors(model: mujoco.MjModel, mass_kg: float, scale: float = 1.0) -> np.ndarray:
+    """`[nu]` effort factors: EFFORT_70KG_NM by joint (actuator names `<joint>` or
+    `<joint>_x|y|z`, the joint's last word picks the row) times mass / 70 kg times `scale`."""
+    out = np.zeros(model.nu)
+    for a in range(model.nu):
+        joint = model.joint(int(model.actuator_trnid[a, 0])).name
+        part = joint.split("_")[-1]
+        if part not in EFFORT_70KG_NM:
+            raise ValueError(f"actuator {model.actuator(a).name!r}: no effort factor for joint kind {part!r}")
+        out[a] = EFFORT_70KG_NM[part] * mass_kg / UNICON_MASS_KG * scale
+    return out
+
+
+class ExecutorEnv:
+    """Gymnasium-style environment (`common.tasks.base.Env`); see the module docstring."""
+
+    @staticmethod
+    def param_space(cfg: TaskConfig) -> ParamSpace:
+        """The humanoid's shape parameters (`cfg.body.parameterization`), pinned to the base shape."""
+        shape = base_character(CHARACTER, 1.0 / cfg.sim_hz).base.spaces.get(cfg.body.parameterization)
+        if shape is None:
+            spaces = base_character(CHARACTER, 1.0 / cfg.sim_hz).base.spaces
+            raise ValueError(f"parameterization {cfg.body.parameterization!r} is not one of {sorted(spaces)}")
+        if cfg.body.vary_shape:
+            raise ValueError("the executor trains on the base humanoid for now: run it with --task.body.no-vary-shape "
+                             "(shape variation over clips is the next step, see README)")
+        d = tuple(float(x) for x in shape.default)
+        return ParamSpace(tuple(shape.names), d, d, d, tuple(p.doc for p in shape.params))
+
+    @staticmethod
+    def clips(cfg: TaskConfig) -> list[tuple[str, str]]:
+        return executor_clips(cfg)
+
+    def __init__(self, cfg: TaskConfig, seed: int = 0):
+        self.cfg, self.ex = cfg, cfg.executor
+        self.rng = np.random.default_rng(seed)
+        self._segments: list[tuple[str, bool]] = []  # ended clip segments not yet drained
+        self._segment_clip = ""
+        self.space = self.param_space(cfg)
+        self.dt = 1.0 / cfg.control_hz
+        ch = load_character(CHARACTER, timestep_s=1.0 / cfg.sim_hz)
+        self.character = ch
+        self.ref_model = ch.model
+        self.ref_data = mujoco.MjData(self.ref_model)
+        self._target_kin_memo: dict[bytes, BodyKin] = {}
+        spec = ch.spec.copy()
+        if self.ex.projectile:
+            for i in range(PROJECTILES):
+                ball = spec.worldbody.add_body(name=f"projectile{i}", pos=list(PARKED), gravcomp=1.0)
+                ball.add_freejoint(name=f"projectile{i}")
+                ball.add_geom(name=f"projectile{i}", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[PROJECTILE["radius_m"], 0, 0],
+                              mass=PROJECTILE["mass_kg"], rgba=[0.9, 0.3, 0.2, 1.0], contype=0, conaffinity=0)
+        set_armature(spec, "ankle", self.ex.ankle_armature)
+        for part in ("shoulder", "elbow"):
+            set_armature(spec, part, self.ex.arm_armature)
+        self.model = spec.compile()
+        self.nq, self.nv, self.nu = self.ref_model.nq, self.ref_model.nv, self.ref_model.nu
+        self.base_mass = self.model.body_mass.copy()
+        self.base_inertia = self.model.body_inertia.copy()
+        self.mass_kg = float(ch.mass_kg)
+        if self.ex.actuation == "torque":
+            self.efforts = effort_factors(self.model, self.mass_kg, self.ex.effort_scale)
+            torque_actuation(self.model, self.efforts)
+            passive_damping(self.model, self.ex.passive_damping)
+        elif self.ex.actuation != "pd":
+            raise ValueError(f"actuation {self.ex.actuation!r} is not one of torque, pd")
+        self.pd_lead_s = pd_lead_s(self.model) if self.ex.actuation == "pd" and self.ex.pd_velocity_target else None
+        self.layout = JointLayout(self.ref_model)
+        self.bodies = np.arange(1, self.ref_model.nbody)
+        self.clip_list = executor_clips(cfg)
+        if not self.clip_list:
+            raise ValueError(f"no clips to track for split {self.ex.split!r} (seed {self.ex.split_seed})")
+        balancer = MotionBalancer(self.clip_list)
+        self.library = MotionLibrary()
+        self._motions: dict[str, CharacterMotion] = {}
+        lookback = self.ex.rsis_frames[1] + 1
+        self.scheduler = DatasetScheduler(self.ref_model, self._motion, balancer.clip_ids, balancer.probabilities, self.dt,
+                                          speed=self.ex.speed, at_end=self.ex.at_clip_end, lookback=lookback,
+                                          lookahead=self.ex.tau + 1, velocity_window=self.ex.target_velocity_window)
+        self.balls = [self.model.body(f"projectile{i}").id for i in range(PROJECTILES)] if self.ex.projectile else []
+        self._thrown_at = [-1] * len(self.balls)
+        self._next_ball = 0
+        self.data = mujoco.MjData(self.model)
+        obs, _ = self.reset(seed, self.space.default_array)
+        self.obs_dim = int(obs.shape[0])
+        self.act_dim = int(self.nu)
+
+    def _motion(self, clip_id: str) -> CharacterMotion:
+        if clip_id not in self._motions:
+            # NOTE: played once through, never wrapped: the scheduler reschedules at the end
+            # anyway, and most "looping" mocap does not close (humanoid3d_walk's shoulders turn
+            # 0.5 rad across its seam), so a wrap put 14 rad/s spikes into the target velocities.
+            clip = self.library.clip(clip_id).with_(loop=False)
+            self._motions[clip_id] = CharacterMotion.from_clip(clip, self.ref_model)
+        return self._motions[clip_id]
+
+    def register_clip(self, clip_id: str, clip) -> None:
+        """Make a clip that is not in the task's set trackable by name (`reset(..., clip_id)`),
+        e.g. a file the project has never seen; it is never drawn. Raises ClipError when the
+        clip's joints do not fit the humanoid."""
+        from common.motion.errors import ClipError
+
+        if clip.character and clip.character != CHARACTER:
+            raise ClipError(f"clip is for the {clip.character!r} character, not {CHARACTER!r}; import it onto the "
+                            "humanoid first (morphmimic motion import ... --character humanoid)", path=clip_id)
+        self._motions[clip_id] = CharacterMotion.from_clip(clip.with_(loop=False), self.ref_model)
+        if hasattr(self.scheduler, "extra_ids"):
+            self.scheduler.extra_ids.add(clip_id)
+
+    def use_scheduler(self, scheduler: Scheduler) -> None:
+        """Drive the targets with another scheduler (UniCon's run-time schedulers: dataset,
+        stitch, keyboard, video; `scheduler_factory.make_scheduler` builds them for this env).
+        The next `reset` begins it; the old one is not closed (its owner closes it)."""
+        for name in ("begin", "frame", "advance", "status"):
+            if not callable(getattr(scheduler, name, None)):
+                raise TypeError(f"{type(scheduler).__name__} is not a Scheduler: it has no {name}()")
+        self.scheduler = scheduler
+
+    # ---- state ----
+
+    def _target_kin(self, frame: TargetFrame) -> BodyKin:
+        # NOTE: memoized on the frame's exact bytes: the frame observed as "next" in one step is
+        # the tracked one in the next step, so without it every frame's kinematics ran twice.
+        key = frame.qpos.tobytes() + frame.qvel.tobytes()
+        kin = self._target_kin_memo.get(key)
+        if kin is None:
+            d = self.ref_data
+            d.qpos[:], d.qvel[:] = frame.qpos, frame.qvel
+            mujoco.mj_kinematics(self.ref_model, d)
+            mujoco.mj_comPos(self.ref_model, d)
+            mujoco.mj_comVel(self.ref_model, d)
+            kin = read_kinematics(self.ref_model, d, self.bodies)
+            if len(self._target_kin_memo) > 2 * (self.ex.tau + 1):
+                self._target_kin_memo.pop(next(iter(self._target_kin_memo)))  # the oldest
+            self._target_kin_memo[key] = kin
+        return kin
+
+    def _actual_kin(self) -> BodyKin:
+        # NOTE: after mj_step the body poses are those before the last integration; recompute
+        # them (kinematics and velocities only, no contacts) so state and targets are in step.
+        mujoco.mj_kinematics(self.model, self.data)
+        mujoco.mj_comPos(self.model, self.data)
+        mujoco.mj_comVel(self.model, self.data)
+        return read_kinematics(self.model, self.data, self.bodies)
+
+    def tracking_kinematics(self) -> tuple[BodyKin, BodyKin]:
+        """(the character's, the tracked target frame's) `BodyKin` now: what the reward terms of
+        the last step compared (for analyses such as `morphmimic break-probe`)."""
+        return self._actual_kin(), self._target_kin(self.scheduler.frame(0))
+
+    @property
+    def qpos(self) -> np.ndarray:
+        """The character's qpos `[nq]` (without the projectile's)."""
+        return self.data.qpos[: self.nq]
+
+    def _observe(self, actual: BodyKin) -> np.ndarray:
+        targets = [self._target_kin(self.scheduler.frame(i)) for i in range(1, self.ex.tau + 1)]
+        return observation(actual, targets, self.params)
+
+    # ---- the Env contract ----
+
+    def reset(self, seed: int | None, params: np.ndarray, clip_id: str | None = None, start_s: float | None = None,
+              ) -> tuple[np.ndarray, dict]:
+        """Start an episode on `clip_id` (a balanced draw when None) at `start_s` (random when
+        None); reactive initialization places the character off the tracked frame, except on the
+        `on_frame_share` of starts that begin on it with the rule from the first step."""
+        if seed is not None:
+            self.rng = np.random.default_rng(seed)
+        self.params = self.space.validate(params).astype(np.float64)
+        self.scheduler.begin(self.rng, clip_id or None, start_s)
+        # Drawn only when some starts are on the frame: with none, the episode's draws are unchanged.
+        on_frame = self.ex.on_frame_share > 0 and self.rng.random() < self.ex.on_frame_share
+        reactive = self.ex.reactive_init and not on_frame
+        offset = 0
+        if reactive:
+            lo, hi = self.ex.rsis_frames
+            offset = int(self.rng.integers(lo, hi + 1)) * (1 if self.rng.random() < 0.5 else -1)
+        start = self.scheduler.frame(offset)
+        mujoco.mj_resetData(self.model, self.data)  # NOTE: a new MjData per episode cost 0.6 ms; this is the same state
+        self.data.qpos[: self.nq] = start.qpos
+        self.data.qvel[: self.nv] = start.qvel
+        if reactive:
+            r, a = self.ex.rsis_translation_m * math.sqrt(self.rng.random()), self.rng.uniform(0, 2 * math.pi)
+            self.data.qpos[0:2] += r * np.array([math.cos(a), math.sin(a)])
+            self.data.qvel[: self.nv] += self.rng.normal(0.0, self.ex.rsis_velocity_std, self.nv)
+        self._park_projectile()
+        lift_out_of_floor(self.model, self.data)
+        self.k = 0
+        self.grace = 0 if on_frame else self.ex.catch_up_steps
+        self.last_terms: dict[str, float] = {}
+        self._segment_clip = getattr(self.scheduler, "clip_id", "")
+        return self._observe(self._actual_kin()), {"clip_id": getattr(self.scheduler, "clip_id", ""), "rsis_offset": offset,
+                                                   "on_frame": on_frame}
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        a = np.asarray(action, dtype=np.float64)
+        if not np.isfinite(a).all():  # checked first: nan_to_num on every step cost 30 us
+            a = np.nan_to_num(a)
+        if self.ex.actuation == "torque":
+            self.data.ctrl[:] = np.clip(a, -1.0, 1.0)
+        else:
+            self.data.ctrl[:] = self.pd_target(self.scheduler.frame(1)) + self.ex.pd_action_scale * np.clip(a, -3.0, 3.0)
+        before = self.qpos.copy() if self.ex.joint_velocity == "step_mean" else None
+        diverged = step_physics(self.model, self.data, self.cfg.substeps)
+        self.k += 1
+        if self.balls:
+            self._expire_projectiles()
+        if diverged:
+            self._end_segment(False)
+            return np.zeros(self.obs_dim, np.float32), 0.0, True, False, {"diverged": True, "ended_by": "divergence"}
+        rescheduled = self.scheduler.advance(self.rng, self.qpos.copy())
+        if rescheduled:
+            self.grace = self.k + self.ex.catch_up_steps
+            self._end_segment(True)
+            self._segment_clip = getattr(self.scheduler, "clip_id", "")
+        actual = self._actual_kin()
+        target_frame = self.scheduler.frame(0)
+        target = self._target_kin(target_frame)
+        errors, pos_err = self._errors(actual, target, target_frame, before)
+        terms = rw.reward_terms(errors, self.ex.reward_scales)
+        self.last_terms = terms
+        reward = rw.weighted_sum(terms, self.ex.reward_weights)
+        ended_by = rw.termination(terms, self.ex.reward_weights, self.ex.termination, self.ex.alpha, self.ex.terminate_on)
+        if ended_by is None and self.k < self.grace and self.ex.catch_up_ends == "on_track":
+            self.grace = self.k  # caught up: the rule applies from the next step
+        terminated = ended_by is not None and self.k > self.grace
+        truncated = not terminated and (self.k >= self.cfg.episode_steps or self.scheduler.done)
+        if terminated or (truncated and self.scheduler.done):  # a time limit says nothing of the clip
+            self._end_segment(not terminated)
+        info = {"diverged": False, "terms": terms, "ended_by": ended_by if terminated else None,
+                "rescheduled": rescheduled, **pos_err, **self.scheduler.status()}
+        return self._observe(actual), reward, terminated, truncated, info
+
+    def _end_segment(self, tracked: bool) -> None:
+        if self._segment_clip:
+            if len(self._segments) >= MAX_UNDRAINED_SEGMENTS:  # nobody drains them (evaluation, play)
+                del self._segments[0]
+            self._segments.append((self._segment_clip, tracked))
+            self._segment_clip = ""
+
+    def drain_segments(self) -> list[tuple[str, bool]]:
+        """The clip segments ended since the last call, (clip id, tracked to the clip's end),
+        for adaptive clip sampling (`sampler/clip_outcomes.py`): a segment runs from a start or
+        a reschedule to the clip's end, or to the termination (or divergence) that cut it; an
+        episode cut by its time limit leaves its segment uncounted."""
+        out, self._segments = self._segments, []
+        return out
+
+    def pd_target(self, frame: TargetFrame) -> np.ndarray:
+        """The PD targets `[nu]` of a zero action (`pd_target`)."""
+        return pd_target(self.layout, frame, self.pd_lead_s)
+
+    def _errors(self, actual: BodyKin, target: BodyKin, frame: TargetFrame,
+                qpos_before: np.ndarray | None = None) -> tuple[dict[str, float], dict[str, float]]:
+        """Each reward term's error (UniCon eq. 5's kernels' arguments) and the position errors in
+        metres; `qpos_before` (the joint angles a control step ago) makes the joint-velocity term
+        compare the step's mean velocity (`ExecutorConfig.joint_velocity = "step_mean"`)."""
+        q, qr = self.qpos, frame.qpos
+        qvel = self.data.qvel[: self.nv]
+        if qpos_before is not None:
+            qvel = np.empty(self.nv)
+            mujoco.mj_differentiatePos(self.ref_model, qvel, self.dt, qpos_before, q)
+        lay = self.layout
+        rel, rel_ref = actual.relative_positions(), target.relative_positions()
+        errors = {
+            "root_position": rw.com_error(actual.com, target.com),
+            "root_rotation": rw.root_rotation_error(q[3:7], qr[3:7]),
+            "joint_position": rw.joint_position_error(rel, rel_ref),
+            "joint_rotation": rw.joint_rotation_error(q[lay.ball_qpos], qr[lay.ball_qpos], q[lay.hinge_qpos], qr[lay.hinge_qpos]),
+            "joint_velocity": rw.joint_velocity_error(qvel[6:], frame.qvel[6:]),
+        }
+        positions = {
+            "joint_error_m": float(np.mean(np.linalg.norm(rel - rel_ref, axis=1))),
+            "body_error_m": float(np.mean(np.linalg.norm(actual.pos - target.pos, axis=1))),
+        }
+        return errors, positions
+
+    # ---- perturbations for the zero-shot robustness tests ----
+
+    def scale_mass(self, factor: float) -> None:
+        """Make every body of the character `factor` times heavier (masses and inertias, and what
+        MuJoCo derives from them: `common.characters.mass`)."""
+        if not 0.05 <= factor <= 20.0:
+            raise ValueError(f"mass factor {factor} must be in [0.05, 20]")
+        n = self.ref_model.nbody
+        scale_body_mass(self.model, self.base_mass[:n], self.base_inertia[:n], factor, slice(0, n))
+
+    def _ball_slots(self, ball: int) -> tuple[int, int, int]:
+        """(qpos address, dof address, geom id) of a projectile body."""
+        jnt = self.model.body_jntadr[ball]
+        return int(self.model.jnt_qposadr[jnt]), int(self.model.jnt_dofadr[jnt]), int(self.model.body_geomadr[ball])
+
+    def _park_projectile(self, which: list[int] | None = None) -> None:
+        """Park balls (all by default): below the floor, at rest, weightless, colliding with nothing."""
+        for i in range(len(self.balls)) if which is None else which:
+            adr, dof, geom = self._ball_slots(self.balls[i])
+            self.data.qpos[adr : adr + 7] = [*PARKED, 1.0, 0.0, 0.0, 0.0]
+            self.data.qvel[dof : dof + 6] = 0.0
+            self.model.body_gravcomp[self.balls[i]] = 1.0
+            self._collides(i, False)
+            self._thrown_at[i] = -1
+
+    def _collides(self, i: int, on: bool) -> None:
+        """Switch ball i's contacts on or off. NOTE: MuJoCo's broadphase filters body pairs by the
+        body-level masks compiled from the geoms', so both levels are set."""
+        ball = self.balls[i]
+        geom = int(self.model.body_geomadr[ball])
+        self.model.geom_contype[geom] = self.model.geom_conaffinity[geom] = int(on)
+        self.model.body_contype[ball] = self.model.body_conaffinity[ball] = int(on)
+
+    def _expire_projectiles(self) -> None:
+        old = [i for i, k in enumerate(self._thrown_at) if k >= 0 and self.k - k >= PROJECTILE_LIFE_STEPS]
+        if old:
+            self._park_projectile(old)
+
+    def throw_projectile(self, speed_mps: float = 10.0, distance_m: float = 2.0, rng: np.random.Generator | None = None) -> None:
+        """Throw the next ball (`PROJECTILE`: 2 kg, 8 cm radius) at the character: it starts
+        `distance_m` away horizontally from the root, in a random direction, at the root's height
+        plus up to +-0.3 m, and flies at `speed_mps` aimed at where the centre of mass will be (the
+        root's velocity held over the flight), under gravity. A ball is
+        parked again 1 s after its throw; `PROJECTILES` balls are thrown in turn."""
+        if not self.balls:
+            raise ValueError("this environment has no projectile: build it with --task.executor.projectile")
+        if not (0.0 < speed_mps <= 100.0 and 0.0 < distance_m <= 20.0):
+            raise ValueError(f"projectile speed {speed_mps} m/s must be in (0, 100] and distance {distance_m} m in (0, 20]")
+        rng = rng or self.rng
+        i = self._next_ball
+        self._next_ball = (i + 1) % len(self.balls)
+        root = self.qpos[0:3].copy()
+        a = rng.uniform(0.0, 2.0 * math.pi)
+        start = root + np.array([distance_m * math.cos(a), distance_m * math.sin(a), rng.uniform(-0.3, 0.3)])
+        start[2] = max(start[2], PROJECTILE["radius_m"] + 0.05)
+        # NOTE: aimed where the centre of mass will be when the ball arrives (the root's current
+        # velocity held): the body's largest target, wherever a tumbling character's root is.
+        aim = self.data.subtree_com[1] + self.data.qvel[0:3] * (distance_m / speed_mps)
+        direction = aim - start
+        direction /= np.linalg.norm(direction)
+        adr, dof, geom = self._ball_slots(self.balls[i])
+        self.data.qpos[adr : adr + 7] = [*start, 1.0, 0.0, 0.0, 0.0]
+        self.data.qvel[dof : dof + 3] = speed_mps * direction
+        self.data.qvel[dof + 3 : dof + 6] = 0.0
+        self.model.body_gravcomp[self.balls[i]] = 0.0
+        self._collides(i, True)
+        self._thrown_at[i] = self.k

@@ -1,0 +1,50 @@
+"""The executor's task configurations (UniCon 2020, METHOD.md B), one per variant;
+`learner/presets.py` pairs each with its PPO, actor and sampler settings.
+
+The executor runs on the DeepMimic humanoid over the train split of every clip that plays on
+it: agent-centric observation with tau = 1, the five-term reward, per-term termination,
+reactive state initialization, 60 Hz control with 4 substeps (240 Hz physics), the motion
+balancer's clip draws, 20 s episodes.
+
+The "pd" variant (the one trained and shipped) differs from UniCon where measurements said so
+(docs/executor.md has each comparison): PD targets instead of torques; the PD damps toward the
+next frame's joint velocity (`pd_velocity_target`); ankles, shoulders and elbows carry a rotor
+inertia of 0.1 kg m^2 (`ankle_armature`, `arm_armature`); half of the episodes start on the
+tracked frame with the rule from the first step (`on_frame_share`). Every variant watches the
+four pose terms for termination (`terminate_on`); joint velocity stays in the reward.
+"""
+
+from __future__ import annotations
+
+from common.tasks.base import TaskConfig
+from common.tasks.body_config import BodyConfig
+from common.tasks.executor.config import ExecutorConfig
+from common.tasks.executor.rewards import POSE_TERMS
+
+VARIANTS: dict[str, str] = {
+    "": "torque, per-term termination, balancer, reactive initialization",
+    "pd": "ablation: PD targets instead of torques",
+    "noterm": "ablation: sum rule, no per-term termination",
+    "uniform": "ablation: uniform clip draws, no balancer",
+    "norsis": "ablation: no reactive initialization",
+}
+"""Variant suffix -> what it changes."""
+
+
+def executor_task(variant: str = "") -> TaskConfig:
+    """The executor's task configuration in `variant` (a key of `VARIANTS`)."""
+    if variant not in VARIANTS:
+        raise ValueError(f"executor variant {variant!r} is not one of {sorted(VARIANTS)}")
+    ex = ExecutorConfig(
+        actuation="pd" if variant == "pd" else "torque",
+        pd_velocity_target=variant == "pd",
+        ankle_armature=0.1 if variant == "pd" else 0.01,
+        arm_armature=0.1 if variant == "pd" else 0.01,
+        termination="sum" if variant == "noterm" else "per_term",
+        reactive_init=variant != "norsis",
+        clip_draws="uniform" if variant == "uniform" else "balancer",
+        terminate_on=POSE_TERMS,
+        on_frame_share=0.5 if variant == "pd" else 0.0,
+    )
+    return TaskConfig(name="executor", control_hz=60.0, sim_hz=240.0, episode_s=20.0,
+                      body=BodyConfig(parameterization="height_thickness", vary_shape=False), executor=ex)

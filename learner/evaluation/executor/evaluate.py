@@ -1,0 +1,474 @@
+"""Per-clip evaluation of a UniCon motion executor checkpoint (METHOD.md B "Evaluation"): which
+clips, which start frames, one deterministic episode per (clip, start), and the aggregates.
+No files and no CLI here (`executor_report.py` writes them; `robustness.py` and
+`executor_ablation.py` reuse the episodes).
+
+Protocol. The task is built as for evaluation (`eval_task`): the scheduler stops at the clip's
+end (the episode is truncated there), the character starts exactly on the tracked frame (no
+reactive initialization and no catch-up grace), the policy acts with its mean action.
+Each clip is started at `start_times` (evenly over its first 80%, no randomness).
+
+One run per episode, with the environment's termination switched off: termination changes
+nothing in the dynamics, it only cuts the episode, so the trajectory with termination off is
+the one every termination rule would have produced up to its own end. The run records the
+first step at which each criterion fails, and every metric is read off that one trajectory:
+
+- success (UniCon): tracked to the clip's end with no reward term below alpha (the per-term
+  rule, for every checkpoint alike, whatever rule it trained with) and no simulator divergence;
+- pose success: the same with only the four pose terms watched (joint velocity left out, as
+  the executor presets train: `ExecutorConfig.terminate_on`);
+- PHC success (Luo et al. 2023): the mean global body-position error (`body_error_m`) never
+  above 0.5 m before the clip's end; measured on the trajectory not cut by UniCon's rule, as
+  PHC's evaluation terminates on its own criterion only;
+- the episode "as the checkpoint runs it": cut at the first step its own termination rule
+  (`ExecutorConfig.termination`: per_term, sum or none) ends it. Its return, mean reward per
+  step, MPJPE (mean root-relative body-position error, `joint_error_m`, in mm) and global mean
+  body-position error (mm) are over that episode's steps.
+
+Running two environments (termination on, then off) would give the same numbers at about
+twice the cost.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import dataclasses
+import json
+from collections import Counter, defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterable
+
+import numpy as np
+import torch
+
+from common.motion.mirror import MIRROR_SUFFIX
+from common.tasks.base import TaskConfig
+from learner.evaluation import eval_core
+
+PHC_THRESHOLD_M = 0.5
+"""PHC's failure criterion: the mean body-position error above this (m) fails the clip."""
+START_SPAN = 0.8
+"""Start frames are spread over this fraction of a clip's duration (from its first frame)."""
+EVAL_EPISODE_S = 3600.0
+"""Time limit of an evaluation episode: far beyond any clip (the scheduler stops at its end)."""
+CLIP_SUFFIXES = (".npz", ".bvh", ".txt", ".json")
+SPLITS = ("train", "test", "unused", "imported")
+"""Split tags: train = a clip the checkpoint trained on; test = UniCon's held-out split of the
+checkpoint's config (not trained on); unused = any other humanoid clip the checkpoint did not
+train on (a checkpoint trained on an explicit clip list); imported = a file given to --clips."""
+
+
+class ClipSelectionError(ValueError):
+    """A --clips value that names no clip (unknown id, missing file, folder without clips)."""
+
+
+@dataclass(frozen=True)
+class EvalClip:
+    """One clip to evaluate: its id in the environment, class label, split tag (`SPLITS`), and
+    for a file the imported clip (registered with `ExecutorEnv.register_clip`)."""
+
+    clip_id: str
+    label: str
+    split: str
+    clip: Any = None
+    source: str = ""
+
+
+@dataclass(frozen=True)
+class Perturbation:
+    """What a robustness row changes (UniCon Table 2); the default changes nothing.
+
+    speed: playback speed of the targets (`ExecutorConfig.speed`); mass: every body of the
+    character `mass` times heavier (`ExecutorEnv.scale_mass`); projectile_every: control steps
+    between two throws of the projectile (0: none), thrown at steps 0, N, 2N, ... of the episode
+    by `ExecutorEnv.throw_projectile(projectile_speed_mps, projectile_distance_m, rng)`, with an
+    rng seeded per (clip, start) so every row and checkpoint sees the same throws."""
+
+    speed: float = 1.0
+    mass: float = 1.0
+    projectile_every: int = 0
+    projectile_speed_mps: float = 10.0
+    projectile_distance_m: float = 2.0
+
+    @property
+    def is_identity(self) -> bool:
+        return self.speed == 1.0 and self.mass == 1.0 and self.projectile_every == 0
+
+
+# ---- which clips, which starts ----
+
+
+def start_times(duration_s: float, n: int, span: float = START_SPAN) -> list[float]:
+    """`n` start times (s) evenly spaced from 0 to `span` x the clip's duration (both ends
+    included; one start: 0). Deterministic: every checkpoint starts at the same frames."""
+    if n < 1:
+        raise ValueError(f"starts = {n} must be >= 1")
+    if n == 1:
+        return [0.0]
+    return [float(x) for x in np.linspace(0.0, span * duration_s, n)]
+
+
+def _with_executor(cfg: TaskConfig, **changes) -> TaskConfig:
+    return dataclasses.replace(cfg, executor=dataclasses.replace(cfg.executor, **changes))
+
+
+def split_tags(cfg: TaskConfig) -> dict[str, str]:
+    """{clip_id: "train" | "test" | "unused"} for every humanoid clip and its mirror image (see
+    `SPLITS`), from the checkpoint's task config: its clip list or split (and split seed), and
+    whether it trained on mirror images (without, a train clip's mirror is "unused")."""
+    from common.tasks.executor.env import humanoid_clips, labelled_clips
+
+    trained = {c for c, _ in labelled_clips(cfg)}
+    held_out = {c for c, _ in labelled_clips(_with_executor(cfg, clips=(), split="test"))}
+    return {c: "train" if c in trained else "test" if c in held_out else "unused" for c, _ in humanoid_clips(mirror=True)}
+
+
+def default_clips(cfg: TaskConfig, splits: Iterable[str] = ("train", "test", "unused")) -> list[EvalClip]:
+    """Every humanoid clip whose split tag is in `splits`, in manifest order; mirror images only
+    when the checkpoint trained on them (`ExecutorConfig.mirror`; name them in --clips otherwise)."""
+    from common.tasks.executor.env import humanoid_clips
+
+    tags, keep = split_tags(cfg), set(splits)
+    return [EvalClip(c, label, tags[c]) for c, label in humanoid_clips(mirror=cfg.executor.mirror) if tags[c] in keep]
+
+
+def classify_clip_value(text: str) -> tuple[str, str]:
+    """("id" | "file" | "folder", text) for one --clips value, or ClipSelectionError naming it:
+    an unknown id, a missing file, a folder holding no `.npz` clips."""
+    from common.tasks.executor.env import humanoid_clips
+
+    ids = [c for c, _ in humanoid_clips(mirror=True)]
+    if text in ids:
+        return "id", text
+    path = Path(text)
+    if path.is_dir():
+        if not sorted(path.glob("*.npz")):
+            raise ClipSelectionError(f"folder {text!r} holds no .npz clips (import files into it with "
+                                     "`morphmimic motion import`, or name clip ids or files)")
+        return "folder", text
+    if path.is_file():
+        if path.suffix.lower() not in CLIP_SUFFIXES:
+            raise ClipSelectionError(f"file {text!r} is not a clip file ({', '.join(CLIP_SUFFIXES)})")
+        return "file", text
+    if path.suffix.lower() in CLIP_SUFFIXES:
+        raise ClipSelectionError(f"file {text!r} does not exist")
+    raise ClipSelectionError(f"{text!r} is no humanoid clip id, clip file or folder of .npz clips; "
+                             f"ids: {', '.join(c for c, _ in humanoid_clips())} (each also as <id>{MIRROR_SUFFIX}, "
+                             "its mirror image)")
+
+
+def import_clip_file(path: Path):
+    """A clip file imported onto the humanoid (`.bvh` through cross-skeleton retargeting);
+    ClipError when it cannot be, or when it is bound to another character."""
+    from common.motion.errors import ClipError
+    from common.motion.library import import_source
+    from common.tasks.executor.env import CHARACTER
+
+    clip = import_source(path, character=CHARACTER) if path.suffix.lower() == ".bvh" else import_source(path)
+    if clip.character and clip.character != CHARACTER:
+        raise ClipError(f"clip is for the {clip.character!r} character, not {CHARACTER!r}; import it onto the humanoid "
+                        "first (morphmimic motion import ... --character humanoid)", path=path)
+    return clip
+
+
+def resolve_clips(values: Iterable[str], cfg: TaskConfig) -> list[EvalClip]:
+    """The clips named by --clips values (ids, files, folders of `.npz`), in the order given,
+    without duplicates. Ids keep their split tag; files are tagged "imported" and get the id
+    `imported/<file stem>`. Raises ClipSelectionError (naming the value) or ClipError."""
+    from common.tasks.executor.env import humanoid_clips
+
+    tags, labels = split_tags(cfg), dict(humanoid_clips(mirror=True))
+    out: list[EvalClip] = []
+    seen: set[str] = set()
+    for value in values:
+        kind, text = classify_clip_value(value)
+        if kind == "id":
+            if text not in seen:
+                out.append(EvalClip(text, labels[text], tags[text]))
+                seen.add(text)
+            continue
+        files = sorted(Path(text).glob("*.npz")) if kind == "folder" else [Path(text)]
+        for f in files:
+            if str(f.resolve()) in seen:
+                continue
+            seen.add(str(f.resolve()))
+            clip = import_clip_file(f)
+            cid, n = f"imported/{f.stem}", 2
+            while cid in seen:
+                cid, n = f"imported/{f.stem}-{n}", n + 1
+            seen.add(cid)
+            out.append(EvalClip(cid, clip.label or "root", "imported", clip, str(f)))
+    return out
+
+
+# ---- episodes ----
+
+
+def eval_task(cfg: TaskConfig, perturbation: Perturbation = Perturbation()) -> TaskConfig:
+    """The checkpoint's task as evaluated (module docstring): every humanoid clip and its mirror
+    image trackable, a stopping scheduler, no reactive initialization, termination off (read off
+    the trajectory instead), a time limit no clip reaches; the row's playback speed and projectile body."""
+    ex = dataclasses.replace(cfg.executor, clips=(), split="all", mirror=True, at_clip_end="stop", reactive_init=False,
+                             on_frame_share=0.0, catch_up_steps=0, termination="none", speed=perturbation.speed,
+                             projectile=perturbation.projectile_every > 0)
+    return dataclasses.replace(cfg, episode_s=EVAL_EPISODE_S, executor=ex)
+
+
+SETTABLE = ("ankle_armature", "arm_armature", "pd_velocity_target", "pd_action_scale", "effort_scale", "passive_damping",
+            "joint_velocity", "target_velocity_window", "alpha", "terminate_on", "reward_weights", "reward_scales")
+"""`ExecutorConfig` fields an evaluation may change from what the checkpoint trained with
+(`--set NAME=VALUE`): the body's model, the PD, and how the reward and the rule measure. The
+clip set, the split and the perturbations have options of their own."""
+ONLY_FOR_ACTUATION = {"pd_velocity_target": "pd", "pd_action_scale": "pd", "effort_scale": "torque",
+                      "passive_damping": "torque"}
+"""`SETTABLE` fields that only one actuation reads: setting one on the other would change nothing."""
+
+
+def _json_or_word(text: str) -> Any:
+    """`text` as JSON, else the bare word itself (a choice such as `step_mean`)."""
+    try:
+        return json.loads(text)
+    except (ValueError, RecursionError):  # RecursionError: nested deeper than a config value can be
+        return text
+
+
+def with_settings(loaded: eval_core.Loaded, pairs: list[str]) -> eval_core.Loaded:
+    """The checkpoint with `NAME=VALUE` pairs (`SETTABLE` fields of its `ExecutorConfig`; VALUE as
+    JSON, or a bare word for a choice, or comma-separated numbers for a tuple) in its task config;
+    ValueError naming the pair and what is allowed. The policy is unchanged: this measures a
+    trained policy on a changed body or rule, as `--zero-action` measures the PD without one."""
+    from learner.config import _from_dict
+
+    if not pairs:
+        return loaded
+    current = dataclasses.asdict(loaded.cfg.task.executor)
+    actuation, named = loaded.cfg.task.executor.actuation, set()
+    for pair in pairs:
+        name, sep, text = pair.partition("=")
+        name = name.strip().replace("-", "_")
+        if not sep or name not in SETTABLE:
+            raise ValueError(f"--set {pair!r}: give NAME=VALUE with NAME one of {', '.join(SETTABLE)}")
+        if name in named:
+            raise ValueError(f"--set {pair!r}: {name} is set twice; give each name once")
+        if ONLY_FOR_ACTUATION.get(name, actuation) != actuation:
+            raise ValueError(f"--set {pair!r}: {name} only acts on {ONLY_FOR_ACTUATION[name]} actuation and this "
+                             f"checkpoint uses {actuation}, so it would change nothing")
+        named.add(name)
+        if isinstance(current[name], tuple) and not text.lstrip().startswith("["):
+            current[name] = [_json_or_word(x.strip()) for x in text.split(",")]
+        else:
+            current[name] = _json_or_word(text.strip())
+    try:
+        ex = _from_dict(type(loaded.cfg.task.executor), current)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"--set {' '.join(pairs)}: {exc}") from None
+    task = dataclasses.replace(loaded.cfg.task, executor=ex)
+    return dataclasses.replace(loaded, cfg=dataclasses.replace(loaded.cfg, task=task))
+
+
+def make_eval_env(loaded: eval_core.Loaded, clips: Iterable[EvalClip], perturbation: Perturbation = Perturbation()):
+    """The evaluation environment with the imported clips registered and the mass scaled."""
+    from common.tasks.registry import make_env
+
+    env = make_env(eval_task(loaded.cfg.task, perturbation), seed=0)
+    for c in clips:
+        if c.clip is not None:
+            env.register_clip(c.clip_id, c.clip)
+    if perturbation.mass != 1.0:
+        env.scale_mass(perturbation.mass)
+    return env
+
+
+def clip_durations(env, clips: Iterable[EvalClip]) -> dict[str, float]:
+    """{clip_id: duration in s} as the environment plays each clip."""
+    out = {}
+    for c in clips:
+        env.reset(0, env.space.default_array, clip_id=c.clip_id, start_s=0.0)
+        out[c.clip_id] = float(env.scheduler.status()["clip_duration_s"])
+    return out
+
+
+def first_failures(terms: dict[str, float], weights, alpha: float, own_rule: str,
+                   own_watch: tuple[str, ...] | None = None) -> tuple[str | None, str | None, str | None]:
+    """(the per-term rule's verdict over all five terms, over the four pose terms, the
+    checkpoint's own rule's verdict) at one step: the name of what ended it
+    (`executor_rewards.termination`), or None."""
+    from common.tasks.executor import rewards as rw
+
+    per_term = rw.termination(terms, weights, "per_term", alpha)
+    pose = rw.termination(terms, weights, "per_term", alpha, rw.POSE_TERMS)
+    own = rw.termination(terms, weights, own_rule, alpha, own_watch or rw.TERMS)
+    return per_term, pose, own
+
+
+def run_episode(env, policy, clip_id: str, start_s: float, own_rule: str, seed: int,
+                perturbation: Perturbation = Perturbation(), on_step: Callable[[Any, int], None] | None = None,
+                ) -> dict[str, Any]:
+    """One deterministic episode on `clip_id` from `start_s` in an `eval_task` environment;
+    the record of the module docstring. `seed` seeds the projectile's directions."""
+    ex = env.ex
+    rng = np.random.default_rng(seed)
+    obs, _ = env.reset(seed, env.space.default_array, clip_id=clip_id, start_s=start_s)
+    planned = int(env.scheduler.status()["steps_left"])
+    rewards: list[float] = []
+    joint_err: list[float] = []
+    body_err: list[float] = []
+    fail = {"per_term": None, "pose": None, "own": None, "phc": None}
+    failed_term = None
+    diverged = False
+    k = 0
+    while True:
+        if perturbation.projectile_every and k % perturbation.projectile_every == 0:
+            env.throw_projectile(perturbation.projectile_speed_mps, perturbation.projectile_distance_m, rng)
+        with torch.no_grad():
+            action, _ = policy.act(obs[None], deterministic=True)
+        obs, r, term, trunc, info = env.step(action[0])
+        k += 1
+        if on_step is not None:
+            on_step(env, k)
+        if info.get("diverged"):
+            diverged = True
+            for key in fail:
+                fail[key] = fail[key] or k
+            failed_term = failed_term or "divergence"
+            break
+        rewards.append(float(r))
+        joint_err.append(float(info["joint_error_m"]))
+        body_err.append(float(info["body_error_m"]))
+        per_term, pose, own = first_failures(info["terms"], ex.reward_weights, ex.alpha, own_rule, ex.terminate_on)
+        if per_term and fail["per_term"] is None:
+            fail["per_term"], failed_term = k, per_term
+        if pose and fail["pose"] is None:
+            fail["pose"] = k
+        if own and fail["own"] is None:
+            fail["own"] = k
+        if info["body_error_m"] > PHC_THRESHOLD_M and fail["phc"] is None:
+            fail["phc"] = k
+        if term or trunc:
+            break
+    own_end = min(fail["own"] or k, len(rewards))
+    ret = float(sum(rewards[:own_end]))
+    return {
+        "clip_id": clip_id, "start_s": float(start_s), "planned_steps": planned, "steps": k,
+        "success": fail["per_term"] is None, "pose_success": fail["pose"] is None, "phc_success": fail["phc"] is None,
+        "fail_step": fail["per_term"], "failed_term": failed_term, "phc_fail_step": fail["phc"],
+        "own_end_step": fail["own"] or k, "diverged": diverged,
+        "tracked_frac": (fail["per_term"] - 1) / max(planned, 1) if fail["per_term"] else 1.0,
+        "return": ret,
+        "return_per_planned_step": ret / max(planned, 1),
+        "reward_per_step": ret / own_end if own_end else 0.0,
+        "mpjpe_mm": 1000.0 * float(np.mean(joint_err[:own_end])) if own_end else None,
+        "global_mpe_mm": 1000.0 * float(np.mean(body_err[:own_end])) if own_end else None,
+    }
+
+
+_WORKER: dict[str, Any] = {}
+
+
+def _init_worker(state_file: str, clips: list[EvalClip], perturbation: Perturbation, zero_action: bool = False,
+                 cfg_json: str = "") -> None:
+    from learner.config import RunConfig
+
+    torch.set_num_threads(1)
+    loaded = eval_core.load(state_file)
+    if cfg_json:  # the parent's config, with any `--set` in it
+        loaded = dataclasses.replace(loaded, cfg=RunConfig.from_json(cfg_json))
+    env = make_eval_env(loaded, clips, perturbation)
+    policy = eval_core.ZeroPolicy(env.act_dim) if zero_action else eval_core.make_policy(loaded, env.obs_dim, env.act_dim)
+    _WORKER.update(env=env, policy=policy,
+                   rule=loaded.cfg.task.executor.termination, perturbation=perturbation)
+
+
+def _work(job: tuple[int, str, float]) -> dict[str, Any]:
+    i, clip_id, start_s = job
+    out = run_episode(_WORKER["env"], _WORKER["policy"], clip_id, start_s, _WORKER["rule"], seed=i,
+                      perturbation=_WORKER["perturbation"])
+    return {"index": i, **out}
+
+
+def episode_jobs(clips: list[EvalClip], durations: dict[str, float], starts: int) -> list[tuple[int, str, float]]:
+    """(index, clip_id, start_s) of every episode, clip-major; the index seeds the episode."""
+    jobs = []
+    for c in clips:
+        for s in start_times(durations[c.clip_id], starts):
+            jobs.append((len(jobs), c.clip_id, s))
+    return jobs
+
+
+def evaluate(loaded: eval_core.Loaded, clips: list[EvalClip], starts: int, workers: int = 1,
+             perturbation: Perturbation = Perturbation(), progress: Callable[[int, int], None] | None = None,
+             durations: dict[str, float] | None = None, zero_action: bool = False) -> list[dict[str, Any]]:
+    """One episode per (clip, start) (`episode_jobs`), each record tagged with its clip's label
+    and split, in job order. `durations` (clip time, s) fixes the start frames; by default they
+    are read from an environment at normal speed, so every perturbation row starts the same frames.
+    `zero_action`: act with zeros instead of the checkpoint's policy (`eval_core.ZeroPolicy`)."""
+    if durations is None:
+        durations = clip_durations(make_eval_env(loaded, clips), clips)
+    jobs = episode_jobs(clips, durations, starts)
+    init = (str(loaded.path), list(clips), perturbation, zero_action, loaded.cfg.to_json())
+    results = eval_core.run_jobs(_init_worker, init, _work, jobs, workers, progress)
+    by_id = {c.clip_id: c for c in clips}
+    for r in results:
+        r["label"], r["split"] = by_id[r["clip_id"]].label, by_id[r["clip_id"]].split
+    return results
+
+
+# ---- aggregates ----
+
+
+def _mean(xs: list) -> float | None:
+    xs = [x for x in xs if x is not None]
+    return float(np.mean(xs)) if xs else None
+
+
+def stats(records: list[dict]) -> dict[str, Any]:
+    """Aggregates of a group of episodes, each episode weighing the same: success and PHC
+    success %, MPJPE and global error (mm, over every episode as the checkpoint runs it, and
+    MPJPE over the successful ones, as PHC reports both), mean reward per step, mean return,
+    performance (mean return per planned step: the robustness measure), the mean tracked share
+    of the clip (%), and how often each term ended an episode."""
+    ok = [r for r in records if r["success"]]
+    return {
+        "episodes": len(records),
+        "clips": len({r["clip_id"] for r in records}),
+        "success_pct": 100.0 * len(ok) / len(records) if records else None,
+        "pose_success_pct": 100.0 * sum(r.get("pose_success", False) for r in records) / len(records) if records else None,
+        "phc_success_pct": 100.0 * sum(r["phc_success"] for r in records) / len(records) if records else None,
+        "mpjpe_mm": _mean([r["mpjpe_mm"] for r in records]),
+        "mpjpe_mm_success": _mean([r["mpjpe_mm"] for r in ok]),
+        "global_mpe_mm": _mean([r["global_mpe_mm"] for r in records]),
+        "reward_per_step": _mean([r["reward_per_step"] for r in records]),
+        "mean_return": _mean([r["return"] for r in records]),
+        "performance": _mean([r["return_per_planned_step"] for r in records]),
+        "tracked_pct": 100.0 * _mean([r["tracked_frac"] for r in records]) if records else None,
+        "diverged": sum(r["diverged"] for r in records),
+        "failed_terms": dict(Counter(r["failed_term"] for r in records if r["failed_term"]).most_common()),
+    }
+
+
+def group_stats(records: list[dict], key: str) -> dict[str, dict[str, Any]]:
+    """{value of `key` (clip_id, label or split): `stats`} in first-seen order."""
+    groups: dict[str, list[dict]] = defaultdict(list)
+    for r in records:
+        groups[r[key]].append(r)
+    return {k: stats(v) for k, v in groups.items()}
+
+
+def summarize(records: list[dict], clips: list[EvalClip]) -> dict[str, Any]:
+    """Per clip (with its label and split), per class (label), per split (in `SPLITS` order)
+    and overall."""
+    per_clip = group_stats(records, "clip_id")
+    meta = {c.clip_id: c for c in clips}
+    for cid, s in per_clip.items():
+        s.update(label=meta[cid].label, split=meta[cid].split, **({"source": meta[cid].source} if meta[cid].source else {}))
+    splits = group_stats(records, "split")
+    return {
+        "overall": stats(records),
+        "splits": {k: splits[k] for k in SPLITS if k in splits},
+        "classes": dict(sorted(group_stats(records, "label").items())),
+        "clips": per_clip,
+    }

@@ -1,0 +1,288 @@
+"""`morphmimic evaluate --checkpoint X` on a UniCon motion executor checkpoint (task "executor";
+`learner/evaluation/evaluate.py` hands such checkpoints here): success per clip over the train and test
+split (METHOD.md B "Evaluation"), with files and pictures.
+
+    morphmimic evaluate --checkpoint runs/executor                       # every humanoid clip, 10 starts each
+    morphmimic evaluate --checkpoint runs/executor --clips humanoid3d_cartwheel humanoid3d_walk --starts 3
+    morphmimic evaluate --checkpoint runs/executor --clips my_clips/ take.bvh --workers 2 --no-render
+    morphmimic evaluate --checkpoint runs/executor --zero-action          # the same episodes with zero actions: the baseline
+
+--clips takes clip ids, clip files (.npz, .bvh onto the humanoid, DeepMimic .txt) and folders
+of `.npz` clips; the default is every humanoid clip, tagged with its split of the checkpoint's
+config (train: trained on; test: UniCon's held-out split; unused: neither, for a checkpoint
+trained on a clip list; imported: a file). --starts N start frames per clip, evenly over its
+first 80%. What is measured, and why one run per episode serves every criterion:
+`learner/evaluation/executor/evaluate.py`.
+
+Writes into `--out` (default `<checkpoint dir>/eval_clips`): `results.json` (meta, summary per
+split, class and clip, one record per episode), `summary.md` (the tables), `clips.png` (success
+rate per clip coloured by split, PHC success as dots) and, unless --no-render, `best.png` /
+`worst.png` strips of the best and worst clip from its first start (GIFs too with --gif).
+Prints one line per split and one overall.
+"""
+
+from __future__ import annotations
+
+
+from common.offscreen_gl import choose_offscreen_gl  # noqa: E402
+
+choose_offscreen_gl()
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from learner.evaluation import cli_args, eval_core
+
+from learner.evaluation.shape import plots as eval_plots
+
+from learner.evaluation.executor import evaluate as xe
+
+ZERO_NOTE = ("**zero actions, not the policy** (`--zero-action`: for PD targets the humanoid's PD on the reference "
+             "itself, for torques no torque; the baseline that shows what the policy adds)")
+SPLIT_COLOURS = {"train": "#3b75af", "test": "#ef8636", "unused": "#9e9e9e", "imported": "#519e3e"}
+
+
+def parser(prog: str = "morphmimic evaluate") -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--checkpoint", required=True, help="checkpoint dir, state.pt or run dir of an executor run")
+    p.add_argument("--clips", nargs="+", type=cli_args.clip_source, default=None, metavar="CLIP",
+                   help="clip ids, clip files or folders of .npz clips (default: every humanoid clip, by split)")
+    p.add_argument("--starts", type=cli_args.positive_int, default=10,
+                   help="start frames per clip, evenly over its first 80%% (deterministic)")
+    p.add_argument("--workers", type=cli_args.positive_int, default=1, help="processes running episodes")
+    p.add_argument("--out", default="", help="output directory (default: <checkpoint dir>/eval_clips)")
+    p.add_argument("--no-render", action="store_true", help="skip the best/worst clip strips")
+    p.add_argument("--gif", action="store_true", help="also write GIFs of the best and worst clip")
+    p.add_argument("--zero-action", action="store_true",
+                   help="act with zero actions instead of the policy (a PD executor: the humanoid's PD on the reference "
+                        "itself; torque: no torque), the baseline that shows what the policy adds; no best/worst strips; default "
+                        "--out <checkpoint dir>/eval_clips_zero_action")
+    p.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE", dest="settings",
+                   help="evaluate with these fields of the checkpoint's executor config changed (the policy is the "
+                        f"same; e.g. ankle_armature=0.1): {', '.join(xe.SETTABLE)}")
+    return p
+
+
+def select_clips(p: argparse.ArgumentParser, values: list[str] | None, loaded: eval_core.Loaded) -> list[xe.EvalClip]:
+    """--clips resolved against the checkpoint's config; an unusable file is a usage error."""
+    from common.motion.errors import ClipError
+
+    try:
+        return xe.resolve_clips(values, loaded.cfg.task) if values else xe.default_clips(loaded.cfg.task)
+    except (xe.ClipSelectionError, ClipError) as exc:
+        p.error(f"argument --clips: {exc}")
+    raise AssertionError("unreachable")
+
+
+def describe(cfg) -> str:
+    """The executor's training settings in a few words."""
+    ex = cfg.task.executor
+    if ex.clips:
+        clips = f"{len(ex.clips)} listed clips"
+    else:
+        clips = f"{ex.split} split (seed {ex.split_seed})"
+    from common.tasks.executor.rewards import POSE_TERMS, TERMS
+
+    watch = {TERMS: "", POSE_TERMS: " on the pose terms"}.get(tuple(ex.terminate_on), f" on {', '.join(ex.terminate_on)}")
+    return (f"{ex.actuation}, {'per-term' if ex.termination == 'per_term' else ex.termination} termination"
+            f"{watch if ex.termination == 'per_term' else ''} (alpha {ex.alpha:g}), {ex.clip_draws} clip draws{f' (adaptive, clip-k {cfg.sampler.clip_k:g})' if cfg.sampler.clip_k else ''}, {'reactive init' if ex.reactive_init else 'no reactive init'}"
+            f"{f' ({100 * ex.on_frame_share:g}% of starts on the frame)' if ex.on_frame_share else ''}, "
+            f"tau {ex.tau}, {clips}")
+
+
+def _f(x: Any, fmt: str = ".1f") -> str:
+    return "-" if x is None else format(x, fmt)
+
+
+def stats_row(name: str, s: dict[str, Any]) -> str:
+    return (f"| {name} | {s['clips']} | {s['episodes']} | {_f(s['success_pct'])} | {_f(s.get('pose_success_pct'))} "
+            f"| {_f(s['phc_success_pct'])} | {_f(s['mpjpe_mm'])} | {_f(s['mpjpe_mm_success'])} | {_f(s['reward_per_step'], '.3f')} "
+            f"| {_f(s['tracked_pct'])} |")
+
+
+STATS_HEAD = ("| clips | episodes | success % | pose success % | PHC success % | MPJPE mm | MPJPE mm (successful) | reward/step "
+              "| tracked % |")
+
+
+def markdown(loaded: eval_core.Loaded, summary: dict, meta: dict, files: list[str]) -> str:
+    head = "| group " + STATS_HEAD
+    rule = "|---" * 10 + "|"
+    lines = [
+        f"# Executor evaluation of `{loaded.name}`", "",
+        f"Checkpoint `{loaded.path}` (iteration {meta['iteration']}, {meta['env_steps']:,d} env steps); trained with "
+        f"{describe(loaded.cfg)}.", "",
+        *([f"**Evaluated with settings changed from training** (`--set {' '.join(meta['settings'])}`): the figures "
+           "measure the trained policy on that body or rule, not the checkpoint as trained.", ""] if meta.get("settings") else []),
+        f"Protocol: {summary['overall']['clips']} clips x {meta['starts']} start frames each (evenly over the clip's "
+        f"first {100 * xe.START_SPAN:.0f}%), starting on the tracked frame (no reactive initialization), "
+        f"{ZERO_NOTE if meta.get('actions') == 'zero' else 'mean action'}, "
+        "the episode truncated at the clip's end. One run per episode with termination off; each criterion is read "
+        "off that trajectory (termination only cuts an episode, it does not change it):", "",
+        f"- **success**: tracked to the clip's end with no reward term below alpha = {loaded.cfg.task.executor.alpha:g} "
+        "(UniCon's per-term rule, for every checkpoint alike) and no simulator divergence;",
+        "- **pose success**: the same with the four pose terms only (joint velocity not watched, as the executor "
+        "presets train);",
+        f"- **PHC success**: the mean global body-position error never above {xe.PHC_THRESHOLD_M:g} m before the clip's end "
+        "(Luo et al. 2023's criterion, not cut by UniCon's rule);",
+        f"- **MPJPE** (mean root-relative body-position error, mm), **reward/step**: over the episode as the checkpoint's own "
+        f"termination rule (`{loaded.cfg.task.executor.termination}`) runs it; MPJPE (successful): over the successful "
+        "episodes only; **tracked %**: the share of the clip before the first term fell below alpha.", "",
+        "Splits: train = clips the checkpoint trained on; test = UniCon's held-out split of its config; unused = other "
+        "humanoid clips it did not train on; imported = files.", "",
+        "## By split", "", head, rule,
+        *(stats_row(k, s) for k, s in summary["splits"].items()),
+        stats_row("**all**", summary["overall"]), "",
+        "## By class", "", "| class " + STATS_HEAD, rule,
+        *(stats_row(f"`{k}`", s) for k, s in summary["classes"].items()), "",
+        "## By clip", "",
+        "| clip | split | class | success % | pose success % | PHC success % | MPJPE mm | reward/step | tracked % "
+        "| ended most by |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for cid, s in summary["clips"].items():
+        ended = next(iter(s["failed_terms"]), "-")
+        lines.append(f"| `{cid}` | {s['split']} | `{s['label']}` | {_f(s['success_pct'])} "
+                     f"| {_f(s.get('pose_success_pct'))} | {_f(s['phc_success_pct'])} | {_f(s['mpjpe_mm'])} "
+                     f"| {_f(s['reward_per_step'], '.3f')} | {_f(s['tracked_pct'])} | {ended} |")
+    lines += ["", "Files: " + ", ".join(f"`{Path(f).name}`" for f in files), ""]
+    return "\n".join(lines)
+
+
+def plot_clips(summary: dict, path: Path, title: str = "") -> Path:
+    """Bar chart of the success rate per clip, coloured by split, PHC success as dots."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch
+
+    clips = sorted(summary["clips"].items(), key=lambda kv: xe.SPLITS.index(kv[1]["split"]))
+    names = [c for c, _ in clips]
+    fig, ax = plt.subplots(figsize=(max(5.0, 0.35 * len(names) + 1.5), 4.2), dpi=120)
+    x = range(len(names))
+    ax.bar(x, [s["success_pct"] for _, s in clips], color=[SPLIT_COLOURS[s["split"]] for _, s in clips])
+    ax.scatter(x, [s["phc_success_pct"] for _, s in clips], marker="o", s=14, c="black", zorder=3)
+    ax.set_xticks(list(x), [n.replace("humanoid3d_", "").replace("humanoid/", "") for n in names], rotation=70,
+                  fontsize=7, ha="right")
+    ax.set_ylim(0, 105)
+    ax.set_ylabel("success % (bars), PHC success % (dots)")
+    present = [k for k in xe.SPLITS if any(s["split"] == k for _, s in clips)]
+    ax.legend([Patch(color=SPLIT_COLOURS[k]) for k in present], present, fontsize=7, loc="upper right", framealpha=0.6)
+    ax.set_title(title, fontsize=9)
+    return eval_plots.save_figure(fig, path)
+
+
+class _CameraView:
+    """What `eval_plots.Recorder` reads of an environment, for the executor's humanoid."""
+
+    def __init__(self, env):
+        self._env = env
+        self.root_body = 1
+
+    model = property(lambda self: self._env.model)
+    data = property(lambda self: self._env.data)
+    character = property(lambda self: self._env.character)
+
+
+def render_clip(loaded: eval_core.Loaded, clip: xe.EvalClip, start_s: float, out: Path, stem: str, gif: bool) -> list[str]:
+    """Strip (and GIF) of one evaluation episode."""
+
+    env = xe.make_eval_env(loaded, [clip])
+    policy = eval_core.make_policy(loaded, env.obs_dim, env.act_dim)
+    rec = eval_plots.Recorder(every=3 if gif else 6)
+    xe.run_episode(env, policy, clip.clip_id, start_s, loaded.cfg.task.executor.termination, seed=0,
+                   on_step=lambda e, k: rec(_CameraView(e), k))
+    rec(_CameraView(env), 0)
+    rec.close()
+    written = [rec.write_strip(out / f"{stem}.png")]
+    if gif:
+        written.append(rec.write_gif(out / f"{stem}.gif", env.cfg.control_hz / 3))
+    return [str(p) for p in written if p is not None]
+
+
+def best_and_worst(summary: dict) -> tuple[str, str]:
+    """Clip ids of the best and the worst clip: by success %, then PHC success %, then reward/step."""
+    def key(kv):
+        s = kv[1]
+        return (s["success_pct"], s["phc_success_pct"], s["reward_per_step"] or 0.0)
+
+    order = sorted(summary["clips"].items(), key=key)
+    return order[-1][0], order[0][0]
+
+
+def evaluate_checkpoint(loaded: eval_core.Loaded, clips: list[xe.EvalClip], starts: int, workers: int, out: Path,
+                        render: bool = False, gif: bool = False, log: str = "evaluate", zero_action: bool = False,
+                        settings: list[str] | None = None) -> dict[str, Any]:
+    """Run the evaluation and write results.json, summary.md, clips.png (and the strips);
+    returns {"meta", "summary", "episodes", "files"}. `zero_action`: the zero-action baseline
+    in the checkpoint's task instead of its policy (no strips: they film the policy). `settings`:
+    the `--set` pairs already applied to `loaded` (`xe.with_settings`), recorded in the files."""
+    out.mkdir(parents=True, exist_ok=True)
+    t0, last = time.monotonic(), [0.0]
+
+    def progress(done: int, total: int) -> None:
+        if time.monotonic() - last[0] > 10 or done == total:
+            last[0] = time.monotonic()
+            print(f"[{log}] {loaded.name}: {done}/{total} episodes, {time.monotonic() - t0:.0f} s", flush=True)
+
+    records = xe.evaluate(loaded, clips, starts, workers, progress=progress, zero_action=zero_action)
+    summary = xe.summarize(records, clips)
+    meta = {"checkpoint": str(loaded.path), "name": loaded.name, "task": "executor",
+            "iteration": int(loaded.state.get("iteration", 0)), "env_steps": int(loaded.state.get("env_steps", 0)),
+            "training": describe(loaded.cfg), "termination": loaded.cfg.task.executor.termination,
+            "alpha": loaded.cfg.task.executor.alpha, "starts": starts, "start_span": xe.START_SPAN,
+            "phc_threshold_m": xe.PHC_THRESHOLD_M, "clips": [c.clip_id for c in clips],
+            "sources": {c.clip_id: c.source for c in clips if c.source}, "wall_s": time.monotonic() - t0,
+            "actions": "zero" if zero_action else "mean", "settings": list(settings or [])}
+    result = {"meta": meta, "summary": summary, "episodes": records}
+    (out / "results.json").write_text(json.dumps(result, indent=1) + "\n")
+    files = [str(out / "results.json"), str(plot_clips(summary, out / "clips.png",
+                                                       f"{loaded.name}: success per clip ({starts} starts each)"))]
+    if render and not zero_action:
+        best, worst = best_and_worst(summary)
+        by_id = {c.clip_id: c for c in clips}
+        for stem, cid in (("best", best), ("worst", worst)):
+            files += render_clip(loaded, by_id[cid], 0.0, out, stem, gif)
+        meta.update(best_clip=best, worst_clip=worst)
+        (out / "results.json").write_text(json.dumps(result, indent=1) + "\n")
+    files.append(str(out / "summary.md"))
+    (out / "summary.md").write_text(markdown(loaded, summary, meta, files))
+    return {**result, "files": files}
+
+
+def line(name: str, group: str, s: dict) -> str:
+    return (f"[evaluate] {name} {group}: success {_f(s['success_pct'])}% (pose {_f(s.get('pose_success_pct'))}%, "
+            f"PHC {_f(s['phc_success_pct'])}%), "
+            f"MPJPE {_f(s['mpjpe_mm'])} mm, reward/step {_f(s['reward_per_step'], '.3f')}, "
+            f"{s['clips']} clips x {s['episodes'] // max(s['clips'], 1)} starts")
+
+
+def main(argv: list[str]) -> int:
+    p = parser()
+    args = p.parse_args(argv)
+    loaded = eval_core.load(args.checkpoint)
+    if loaded.cfg.task.name != "executor":
+        p.error(f"--checkpoint {args.checkpoint}: task {loaded.cfg.task.name!r} is not the executor; "
+                f"{', '.join(eval_core.EXECUTOR_ONLY_OPTIONS)} are executor options")
+    try:
+        loaded = xe.with_settings(loaded, args.settings)
+    except ValueError as exc:
+        p.error(str(exc))
+    clips = select_clips(p, args.clips, loaded)
+    out = Path(args.out) if args.out else loaded.path.parent / ("eval_clips_zero_action" if args.zero_action else "eval_clips")
+    result = evaluate_checkpoint(loaded, clips, args.starts, args.workers, out, render=not args.no_render, gif=args.gif,
+                                 zero_action=args.zero_action, settings=args.settings)
+    s = result["summary"]
+    name = f"{loaded.name} (zero action)" if args.zero_action else loaded.name
+    for group, stats in s["splits"].items():
+        print(line(name, group, stats))
+    print(line(name, "all", s["overall"]) + f"; wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))

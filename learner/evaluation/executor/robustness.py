@@ -1,0 +1,378 @@
+"""`morphmimic robustness --checkpoint X`: UniCon's zero-shot robustness tests (Table 2, METHOD.md
+B "Evaluation") on one checkpoint: the reference played slower or faster, projectiles thrown at
+the character, a heavier and a lighter body, none of which the policy saw in training.
+
+    morphmimic robustness --checkpoint runs/executor                         # train-split clips, 3 starts each
+    morphmimic robustness --checkpoint runs/executor --clips humanoid3d_cartwheel --starts 10   # the paper's clip
+    morphmimic robustness --checkpoint runs/executor --rows speed,mass --workers 2
+    morphmimic robustness --checkpoint learner/pretrained/lower_biped --shapes 20 --episode-s 10   # a shape controller
+
+Each row is performance relative to the same episodes unperturbed. Performance: the mean over
+the episodes of the return under the checkpoint's own termination rule divided by the
+episode's planned length in control steps (the clip segment at that playback speed for the
+executor, the episode length for a shape controller): the mean reward per planned step, a step
+after termination counting 0. The raw return would reward slow playback (x0.5 takes twice the
+steps), so it is normalized; for rows at normal speed the two agree up to each episode's fixed
+length. UniCon measures with "the reward" too. Also reported per row: success %.
+
+Executor: episodes on the `--clips` (default: the clips the checkpoint trained on) from
+`--starts` frames each, exactly as `morphmimic evaluate` runs them (`learner/evaluation/executor/evaluate.py`);
+success = tracked to the clip's end with no reward term below alpha.
+Shape controllers (Won & Lee walkers and swimmers): `--shapes` random shapes (fixed `--seed`),
+`--episode-s` episodes; success = did not fall. Mass rows apply to every one; speed rows only to
+a checkpoint trained with the "speed" task parameter (its playback speed is an observed episode
+parameter); projectile rows to none (the shape tasks have no projectile body). Skipped rows are
+listed with the reason.
+
+The projectile (`ExecutorEnv.throw_projectile`, a 2 kg ball of 8 cm radius) is launched at
+`--projectile-speed` (10 m/s) from `--projectile-distance` (2 m) straight at the root, at steps
+0, N, 2N, ... of each episode. The scene holds `PROJECTILES` (24) balls thrown in turn, each
+parked again 1 s after its throw, so even a throw every control step has balls arriving while
+the next ones fly (12 control steps of flight at the defaults); a row whose interval times the
+ball count is shorter than a flight is skipped, since balls would be re-thrown before they land.
+
+Writes into `--out` (default `<checkpoint dir>/robustness`): `robustness.md` (the table, UniCon's
+and DeepMimic's figures beside each row, the projectile described), `robustness.json`,
+`robustness.png` (relative performance against speed factor and projectile interval, the
+paper's figures as a second line). Prints one line per row.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import argparse
+import dataclasses
+import math
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from learner.evaluation import cli_args, eval_core
+
+from learner.evaluation.executor import evaluate as xe
+from common.characters.mass import scale_body_mass, set_body_mass
+from common.tasks.executor.env import PROJECTILES
+
+SPEEDS = (0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.1, 1.2, 1.3, 1.4, 1.5, 1.6)
+PROJECTILE_EVERY = (1, 5, 10, 20, 30, 40, 50, 60, 70, 80)
+MASSES = {"heavy": 1.25, "light": 0.75}
+UNICON_TABLE2 = {
+    "speed": {1.6: (65.8, 21.5), 1.5: (76.9, 20.2), 1.4: (88.7, 21.5), 1.3: (95.9, 22.5), 1.2: (98.5, 27.4),
+              1.1: (98.0, 38.1), 0.9: (99.2, 36.3), 0.8: (96.6, 22.2), 0.7: (91.7, 15.0), 0.6: (70.0, 13.7),
+              0.5: (47.4, 10.8), 0.4: (34.5, 8.1)},
+    "projectile": {1: (31.6, 13.2), 5: (69.9, 27.7), 10: (86.8, 37.5), 20: (95.9, 51.7), 30: (97.1, 60.0),
+                   40: (98.0, 63.0), 50: (98.7, 62.0), 60: (98.7, 65.2), 70: (98.9, 63.9), 80: (99.2, 68.8)},
+    "mass": {"heavy": (77.9, 65.7), "light": (98.2, 33.5)},
+}
+"""UniCon 2020 Table 2: relative performance (%) on a cartwheel clip, (UniCon, DeepMimic)."""
+GROUPS = ("speed", "projectile", "mass")
+PROJECTILE_SPEED_MPS = 10.0
+PROJECTILE_DISTANCE_M = 2.0
+
+
+@dataclass(frozen=True)
+class Row:
+    """One row of the table: its group, name, what it changes, and the paper's figures."""
+
+    group: str
+    name: str
+    perturbation: xe.Perturbation
+    paper: tuple[float, float] | None = None
+
+    @property
+    def x(self) -> float:
+        """The row's value on its plot axis: speed factor, throw interval (steps), mass factor."""
+        p = self.perturbation
+        return {"speed": p.speed, "projectile": float(p.projectile_every), "mass": p.mass}[self.group]
+
+
+def rows_for(groups: tuple[str, ...], projectile_speed: float = PROJECTILE_SPEED_MPS,
+             projectile_distance: float = PROJECTILE_DISTANCE_M) -> list[Row]:
+    """Table 2's rows of the chosen groups, in the paper's order within each group."""
+    out: list[Row] = []
+    if "speed" in groups:
+        out += [Row("speed", f"speed x{s:g}", xe.Perturbation(speed=s), UNICON_TABLE2["speed"][s]) for s in SPEEDS]
+    if "projectile" in groups:
+        out += [Row("projectile", f"projectile every {n}", xe.Perturbation(
+            projectile_every=n, projectile_speed_mps=projectile_speed, projectile_distance_m=projectile_distance),
+            UNICON_TABLE2["projectile"][n]) for n in PROJECTILE_EVERY]
+    if "mass" in groups:
+        out += [Row("mass", f"{k} x{m:g}", xe.Perturbation(mass=m), UNICON_TABLE2["mass"][k]) for k, m in MASSES.items()]
+    return out
+
+
+def row_groups(text: str) -> tuple[str, ...]:
+    """argparse type: a comma-separated subset of speed, projectile, mass."""
+    parts = tuple(p.strip() for p in text.split(",") if p.strip())
+    bad = [p for p in parts if p not in GROUPS]
+    if not parts or bad:
+        raise argparse.ArgumentTypeError(f"{text!r} must be a comma-separated list of {', '.join(GROUPS)}")
+    return tuple(g for g in GROUPS if g in parts)
+
+
+def relative(perf: float | None, base: float | None) -> float | None:
+    """perf / base, None when either is missing or the base is 0."""
+    if perf is None or not base:
+        return None
+    return perf / base
+
+
+# ---- the executor ----
+
+
+def projectile_flight_steps(row: Row, control_hz: float) -> int:
+    """Control steps a thrown ball needs to reach the root (straight line, at its launch speed)."""
+    p = row.perturbation
+    return int(math.ceil(p.projectile_distance_m / p.projectile_speed_mps * control_hz))
+
+
+def projectile_problem(loaded: eval_core.Loaded, clip: xe.EvalClip) -> str | None:
+    """Why the projectile rows cannot run with this environment, or None: the character must
+    start on the tracked frame in an environment that has the projectile body."""
+    env = xe.make_eval_env(loaded, [clip], xe.Perturbation(projectile_every=1))
+    env.reset(0, env.space.default_array, clip_id=clip.clip_id, start_s=0.0)
+    off = float(np.linalg.norm(env.qpos[0:3] - env.scheduler.frame(0).qpos[0:3]))
+    if off > 0.25:
+        return (f"with the projectile balls in the scene the character starts {off:.1f} m from its tracked frame "
+                "(a parked ball touches the character or the floor)")
+    return None
+
+
+def executor_rows(loaded: eval_core.Loaded, clips: list[xe.EvalClip], starts: int, workers: int, rows: list[Row],
+                  log=print) -> tuple[dict, list[dict]]:
+    """(the unperturbed row, one result per row), the same (clip, start) episodes in each."""
+    base_env = xe.make_eval_env(loaded, clips)
+    durations = xe.clip_durations(base_env, clips)
+    hz = loaded.cfg.task.control_hz
+
+    def measure(name: str, pert: xe.Perturbation) -> dict[str, Any]:
+        t0 = time.monotonic()
+        records = xe.evaluate(loaded, clips, starts, workers, pert, durations=durations)
+        s = xe.stats(records)
+        return {"row": name, "stats": s, "performance": s["performance"], "success_pct": s["success_pct"],
+                "mean_return": s["mean_return"], "seconds": time.monotonic() - t0,
+                "episodes": [{k: r[k] for k in ("clip_id", "start_s", "return", "planned_steps", "success")}
+                             for r in records]}
+
+    problem = projectile_problem(loaded, clips[0]) if any(r.group == "projectile" for r in rows) else None
+
+    def skip(row: Row) -> str | None:
+        if row.group != "projectile":
+            return None
+        if problem:
+            return problem
+        flight = projectile_flight_steps(row, hz)
+        if row.perturbation.projectile_every * PROJECTILES < flight:
+            return (f"{PROJECTILES} projectile balls: thrown every {row.perturbation.projectile_every} steps, each is thrown "
+                    f"again before it arrives ({flight} steps of flight: {row.perturbation.projectile_distance_m:g} m at "
+                    f"{row.perturbation.projectile_speed_mps:g} m/s), so nothing would hit")
+        return None
+
+    return _run_rows(rows, measure, skip, log)
+
+
+# ---- shape controllers (Won & Lee walkers and swimmers) ----
+
+
+class _MassScaled:
+    """An `ImitateEnv` whose every character body is `factor` times heavier (masses and
+    inertias). Applied after each reset, since a reset may switch to another cached shape's
+    model; the previous episode's model gets its own masses back first, so a model the shape
+    cache hands out again is never scaled twice. Masses change through `common.characters.mass`,
+    which also recomputes what MuJoCo derives from them (the subtree masses the COM divides by)."""
+
+    def __init__(self, env, factor: float):
+        self._env, self._factor = env, factor
+        self._scaled: tuple | None = None
+
+    def __getattr__(self, name):
+        return getattr(self._env, name)
+
+    def reset(self, seed, params, *a, **k):
+        if self._scaled is not None:
+            m, mass, inertia = self._scaled
+            set_body_mass(m, mass, inertia)
+        out = self._env.reset(seed, params, *a, **k)
+        m = self._env.model
+        self._scaled = (m, m.body_mass.copy(), m.body_inertia.copy())
+        scale_body_mass(m, self._scaled[1], self._scaled[2], self._factor)
+        return out
+
+    def step(self, action):
+        return self._env.step(action)
+
+
+_SHAPE: dict[str, Any] = {}
+
+
+def _shape_task(cfg, episode_s: float, speed: float):
+    task = eval_core.eval_task(cfg, episode_s)
+    if speed != 1.0:
+        lo, hi = task.imitate.speed_range
+        task = dataclasses.replace(task, imitate=dataclasses.replace(task.imitate, speed_range=(min(lo, speed), max(hi, speed))))
+    return task
+
+
+def _init_shape(state_file: str, episode_s: float, pert: xe.Perturbation) -> None:
+    import torch
+
+    from common.tasks.registry import make_env
+
+    torch.set_num_threads(1)
+    loaded = eval_core.load(state_file)
+    env = make_env(_shape_task(loaded.cfg.task, episode_s, pert.speed), seed=0)
+    _SHAPE.update(env=_MassScaled(env, pert.mass) if pert.mass != 1.0 else env,
+                  policy=eval_core.make_policy(loaded, env.obs_dim, env.act_dim), pert=pert)
+
+
+def _shape_work(job: tuple[int, np.ndarray, int]) -> dict[str, Any]:
+    i, params, seed = job
+    params = params.copy()
+    env, pert = _SHAPE["env"], _SHAPE["pert"]
+    if pert.speed != 1.0:
+        params[list(env.space.names).index("speed")] = pert.speed
+    r = eval_core.run_episode(env, _SHAPE["policy"], params, seed)
+    return {"index": i, "return": r["return"], "fell": r["fell"] or r["diverged"], "steps": r["steps"]}
+
+
+def shape_rows(loaded: eval_core.Loaded, shapes: int, episode_s: float, seed: int, workers: int, rows: list[Row],
+               log=print) -> tuple[dict, list[dict]]:
+    """(the unperturbed row, one result per row) for a shape controller on `shapes` random shapes."""
+    from common.tasks.registry import task_space
+
+    space = task_space(eval_core.eval_task(loaded.cfg.task, episode_s))
+    params = eval_core.eval_shapes(space, shapes, seed)
+    if "speed" in space.names:  # the unperturbed episodes play at normal speed; rows set their own
+        params[:, list(space.names).index("speed")] = 1.0
+    planned = max(1, int(round(episode_s * loaded.cfg.task.control_hz)))
+    jobs = [(i, params[i], seed + i) for i in range(len(params))]
+
+    def measure(name: str, pert: xe.Perturbation) -> dict[str, Any]:
+        t0 = time.monotonic()
+        init = (str(loaded.path), episode_s, pert)
+        res = eval_core.run_jobs(_init_shape, init, _shape_work, jobs, workers)
+        perf = float(np.mean([r["return"] / planned for r in res]))
+        return {"row": name, "performance": perf, "success_pct": 100.0 * float(np.mean([not r["fell"] for r in res])),
+                "mean_return": float(np.mean([r["return"] for r in res])), "seconds": time.monotonic() - t0,
+                "episodes": [{"index": r["index"], "return": r["return"], "success": not r["fell"]} for r in res]}
+
+    def skip(row: Row) -> str | None:
+        if row.group == "projectile":
+            return f"task {loaded.cfg.task.name!r} has no projectile body (the executor's robustness hook)"
+        if row.group == "speed" and "speed" not in loaded.cfg.task.imitate.task_params:
+            return ("trained without the 'speed' task parameter: a shape task plays its reference at another "
+                    "speed only through that parameter, which is part of the observation, so this policy cannot take it")
+        return None
+
+    return _run_rows(rows, measure, skip, log)
+
+
+def _run_rows(rows: list[Row], measure, skip, log) -> tuple[dict, list[dict]]:
+    """(the unperturbed row, one result per row): `measure(name, perturbation)` each row that
+    `skip(row)` gives no reason for, each made relative to the unperturbed one and logged."""
+    base = measure("unperturbed", xe.Perturbation())
+    log(_line(base, base))
+    out = []
+    for row in rows:
+        res = {"group": row.group, "x": row.x, "paper": row.paper, "row": row.name}
+        reason = skip(row)
+        if reason:
+            res["skipped"] = reason
+        else:
+            res.update(measure(row.name, row.perturbation))
+        _finish(res, base)
+        out.append(res)
+        log(_line(res, base))
+    return _finish(base, base), out
+
+
+def _finish(res: dict, base: dict) -> dict:
+    if "skipped" not in res:
+        res["relative"] = relative(res["performance"], base["performance"])
+        res["relative_return"] = relative(res["mean_return"], base["mean_return"])
+    return res
+
+
+_SAID: set[str] = set()
+
+
+def _line(res: dict, base: dict) -> str:
+    if "skipped" in res:
+        said = res["skipped"] in _SAID
+        _SAID.add(res["skipped"])
+        return f"[robustness] {res['row']}: skipped ({'as above' if said else res['skipped']})"
+    rel = relative(res["performance"], base["performance"])
+    paper = res.get("paper")
+    return (f"[robustness] {res['row']}: relative performance {'-' if rel is None else f'{100 * rel:.1f}%'}"
+            f"{'' if not paper else f' (UniCon {paper[0]:g}%)'}, success {res['success_pct']:.1f}%, "
+            f"performance {res['performance']:.3f} ({res['seconds']:.0f} s)")
+
+
+def main(argv: list[str]) -> int:
+    from learner.evaluation.executor import robustness_report
+
+    p = argparse.ArgumentParser(prog="morphmimic robustness", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--checkpoint", required=True, help="checkpoint dir, state.pt, run dir or learner/pretrained/<name>")
+    p.add_argument("--rows", type=row_groups, default=GROUPS, help="groups of rows: speed,projectile,mass (default: all)")
+    p.add_argument("--clips", nargs="+", type=cli_args.clip_source, default=None, metavar="CLIP",
+                   help="executor: clip ids, files or folders of .npz clips (default: the clips it trained on)")
+    p.add_argument("--starts", type=cli_args.positive_int, default=3, help="executor: start frames per clip")
+    p.add_argument("--projectile-speed", type=cli_args.positive_float, default=PROJECTILE_SPEED_MPS,
+                   help="executor: launch speed of the projectile, m/s")
+    p.add_argument("--projectile-distance", type=cli_args.positive_float, default=PROJECTILE_DISTANCE_M,
+                   help="executor: horizontal distance from the root the projectile is launched from, m")
+    p.add_argument("--shapes", type=cli_args.positive_int, default=20, help="shape controllers: random shapes")
+    p.add_argument("--episode-s", type=cli_args.positive_float, default=10.0, help="shape controllers: episode length, s")
+    p.add_argument("--seed", type=cli_args.seed, default=2019, help="shape controllers: seed of the shape draws")
+    p.add_argument("--workers", type=cli_args.positive_int, default=1, help="processes running episodes")
+    p.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE", dest="settings",
+                   help=f"executor: these config fields changed, the policy the same (as `morphmimic evaluate --set`): "
+                        f"{', '.join(xe.SETTABLE)}")
+    p.add_argument("--out", default="", help="output directory (default: <checkpoint dir>/robustness)")
+    args = p.parse_args(argv)
+    loaded = eval_core.load(args.checkpoint)
+    executor = loaded.cfg.task.name == "executor"
+    defaults = vars(p.parse_args(["--checkpoint", args.checkpoint]))
+    wrong = (("shapes", "episode_s", "seed") if executor else ("clips", "starts", "projectile_speed", "projectile_distance",
+                                                                "settings"))
+    given = [f"--{'set' if k == 'settings' else k.replace('_', '-')}" for k in wrong if getattr(args, k) != defaults[k]]
+    if given:
+        p.error(f"{', '.join(given)}: not options for task {loaded.cfg.task.name!r} "
+                f"({'executor' if executor else 'shape controller'} checkpoints take "
+                f"{'--clips, --starts, --projectile-speed, --projectile-distance, --set' if executor else '--shapes, --episode-s, --seed'})")
+    if executor:
+        try:
+            loaded = xe.with_settings(loaded, args.settings)
+        except ValueError as exc:
+            p.error(str(exc))
+    rows = rows_for(args.rows, args.projectile_speed, args.projectile_distance)
+    out = Path(args.out) if args.out else loaded.path.parent / "robustness"
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.monotonic()
+    if executor:
+        from learner.evaluation.executor.report import select_clips
+
+        clips = select_clips(p, args.clips, loaded) if args.clips else xe.default_clips(loaded.cfg.task, ("train",))
+        if not clips:
+            p.error(f"--checkpoint {args.checkpoint}: it trained on no humanoid clip; name --clips")
+        base, results = executor_rows(loaded, clips, args.starts, args.workers, rows)
+        protocol = {"clips": [c.clip_id for c in clips], "starts": args.starts, "settings": args.settings, "projectile": {
+            **robustness_report.projectile_spec(), "speed_mps": args.projectile_speed, "distance_m": args.projectile_distance}}
+    else:
+        base, results = shape_rows(loaded, args.shapes, args.episode_s, args.seed, args.workers, rows)
+        protocol = {"shapes": args.shapes, "episode_s": args.episode_s, "seed": args.seed}
+    files = robustness_report.write(loaded, base, results, protocol, out, time.monotonic() - t0)
+    print(f"[robustness] {loaded.name}: wrote {', '.join(Path(f).name for f in files)} to {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))

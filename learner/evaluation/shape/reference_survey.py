@@ -1,0 +1,116 @@
+"""`morphmimic references --preset P`: how physical a walker's retargeted reference is over the
+shapes `morphmimic evaluate` draws, per root-height rule and body clearance.
+
+    morphmimic references --preset lower_biped                       # 300 shapes, seed 2019
+    morphmimic references --preset lower_biped --rules contact_set contact_smooth --clearances 0 0.01
+
+Won & Lee 2019 (METHOD.md A) retarget the clip to every body; a retargeting that asks what no
+body can do shows up as falls a controller cannot avoid. Per (rule, clearance), over the same
+shapes (`eval_core.eval_shapes`, the evaluation's seed), the reference as the task builds it
+(`ImitateEnv.reset`):
+- root step: the largest change of the root's height between two frames (`check.root_bob`);
+  a walk bobs by a few mm per frame, a jump of centimetres is a vertical jerk;
+- root range: how far the root's height ranges over the clip;
+- stance foot: the largest |height| of a foot's lowest point on its contact frames (float or
+  sinking while it should be planted);
+- clearance: how close a body whose floor contact is a fall gets to the floor
+  (`check.body_clearance`); under 0 the reference itself falls.
+Writes `references.md` and `references.json` into `--out` and prints the table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from learner.evaluation import cli_args
+
+
+def survey(preset: str, rule: str, clearance_m: float, shapes: np.ndarray) -> dict[str, float]:
+    """The reference figures of one (rule, clearance) over `shapes` (rows of the task's space)."""
+    from common.motion.check import body_clearance, root_bob
+    from common.motion.root_height import foot_heights
+    from common.tasks.shape import references
+    from common.tasks.registry import make_env
+    from learner.presets import PRESETS
+
+    task = PRESETS[preset][1].task
+    task = dataclasses.replace(task, imitate=dataclasses.replace(task.imitate, retarget_root_height=rule,
+                                                                 retarget_body_clearance_m=clearance_m))
+    env = make_env(task, seed=0)
+    flags = references.task_clip(env.preset, env.clip_id, env.timestep_s)[1].flags
+    step, span, stance, clear = [], [], [], []
+    for shape in shapes:
+        env.reset(0, shape)
+        q = env.motion.qpos_frames
+        r, s = root_bob(q)
+        span.append(r)
+        step.append(s)
+        h, _ = foot_heights(env.model, q, tuple(env.character.foot_geoms))
+        stance.append(float(np.abs(h[flags]).max()) if flags.any() else 0.0)
+        clear.append(body_clearance(env.model, q, np.flatnonzero(~env.allowed_contact))[0])
+    step_a, stance_a, clear_a = np.array(step), np.array(stance), np.array(clear)
+    return {"rule": rule, "clearance_m": clearance_m, "shapes": len(shapes),
+            "root_step_mm_median": 1e3 * float(np.median(step_a)), "root_step_mm_p90": 1e3 * float(np.percentile(step_a, 90)),
+            "root_step_mm_max": 1e3 * float(step_a.max()), "root_range_mm_median": 1e3 * float(np.median(span)),
+            "stance_foot_mm_median": 1e3 * float(np.median(stance_a)), "stance_foot_mm_max": 1e3 * float(stance_a.max()),
+            "clearance_mm_min": 1e3 * float(clear_a.min()), "shapes_clearance_under_5mm": int(np.sum(clear_a < 0.005)),
+            "shapes_clearance_under_0": int(np.sum(clear_a < 0.0))}
+
+
+def table(rows: list[dict]) -> str:
+    lines = ["| root-height rule | clearance | root step, median / p90 / max (mm) | root range, median (mm) "
+             "| stance foot off the floor, median / max (mm) | shapes within 5 mm of a fall / into the floor "
+             "| lowest clearance (mm) |", "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['rule']} | {1e3 * r['clearance_m']:g} mm | {r['root_step_mm_median']:.1f} / "
+                     f"{r['root_step_mm_p90']:.1f} / {r['root_step_mm_max']:.1f} | {r['root_range_mm_median']:.1f} "
+                     f"| {r['stance_foot_mm_median']:.1f} / {r['stance_foot_mm_max']:.1f} "
+                     f"| {r['shapes_clearance_under_5mm']} / {r['shapes_clearance_under_0']} | {r['clearance_mm_min']:.1f} |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str]) -> int:
+    from common.motion.root_height import ROOT_HEIGHT_RULES
+    from common.tasks.registry import make_env
+    from learner.evaluation import eval_core
+    from learner.presets import PRESETS
+
+    p = argparse.ArgumentParser(prog="morphmimic references", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    walkers = [name for name, (_, cfg) in PRESETS.items() if cfg.task.name in ("lower_biped", "quadruped", "biped")
+               and "-" not in name]
+    p.add_argument("--preset", choices=walkers, default="lower_biped", help="a walking shape task")
+    p.add_argument("--shapes", type=cli_args.positive_int, default=300, help="random shapes (the evaluation's 300)")
+    p.add_argument("--seed", type=cli_args.seed, default=2019, help="seed of the shape draws (the evaluation's)")
+    p.add_argument("--rules", nargs="+", choices=ROOT_HEIGHT_RULES, default=list(ROOT_HEIGHT_RULES),
+                   help="root-height rules to compare (default: all)")
+    p.add_argument("--clearances", nargs="+", type=cli_args.clearance, default=[0.0, 0.01],
+                   help="body clearances (m) to compare, each with every rule (default: 0 0.01)")
+    p.add_argument("--out", default="", help="output directory (default: none, print only)")
+    args = p.parse_args(argv)
+    env = make_env(PRESETS[args.preset][1].task, seed=0)
+    shapes = eval_core.eval_shapes(env.space, args.shapes, args.seed)
+    rows = []
+    for rule in args.rules:
+        for clearance in args.clearances:
+            rows.append(survey(args.preset, rule, clearance, shapes))
+            print(f"[references] {rule}, clearance {1e3 * clearance:g} mm: done", flush=True)
+    text = (f"# The `{args.preset}` reference over {args.shapes} evaluation shapes (seed {args.seed})\n\n"
+            f"{table(rows)}\n")
+    if args.out:
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "references.md").write_text(text)
+        (out / "references.json").write_text(json.dumps(rows, indent=1) + "\n")
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))
