@@ -1,0 +1,86 @@
+"""One way to read a `morphmimic` command's options: a dataclass parsed by tyro.
+
+Each command declares its options as one dataclass whose field docstrings are the `--help`
+texts, with the numeric fields' allowed ranges in `LIMITS` (`common.config_limits`) and any
+other check in `validate()`. `parse_options` returns the filled dataclass or ends the process
+with one line on stderr naming the value and what is allowed, exit 2:
+
+    @validated
+    @dataclass
+    class Options:
+        checkpoint: str
+        \"\"\"A run directory or a state.pt.\"\"\"
+        starts: int = 10
+        \"\"\"Starts per clip.\"\"\"
+        LIMITS: ClassVar[dict[str, Limit]] = {"starts": at_least(1)}
+        FLAG_PREFIX: ClassVar[str] = ""
+
+        def validate(self) -> None:
+            check_limits(self)
+
+    opts = parse_options(Options, argv, prog="morphmimic evaluate", description=__doc__)
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import sys
+from typing import Any, TypeVar
+
+import tyro
+
+from common.config_limits import deferred_checks, validate_tree
+
+T = TypeVar("T")
+
+
+def one_line(box: str) -> str:
+    """tyro's boxed parse error as one line: its message, then the expected form or the flag it
+    suggests (`--ppo.lr abc` -> "Error parsing --ppo.lr: could not convert string to float:
+    'abc'; expected: --ppo.lr FLOAT")."""
+    lines = [line for line in box.splitlines() if line.strip()]
+    if len(lines) >= 2 and lines[0].lstrip()[:1] in ("╭", "+", "-"):
+        lines = lines[1:-1]  # the top border (with the box's title) and the bottom one
+    rows = [line.strip().strip("│|").strip() for line in lines]
+    sections, current = [], []
+    for row in rows:
+        if not row:
+            continue
+        if set(row) <= set("─-=+"):
+            sections.append(current)
+            current = []
+        else:
+            current.append(row)
+    sections.append(current)
+    sections = [sec for sec in sections if sec]
+    if len(sections) > 1 and len(sections[0]) == 1 and len(sections[0][0]) < 40 and not set(sections[0][0]) & set(":'\""):
+        sections = sections[1:]  # a plain-text box's title ("Value error") on a row of its own
+    if not sections:
+        return box.strip() or "invalid arguments"
+    text = " ".join(sections[0])
+    for sec in sections[1:]:
+        if sec[0].startswith(("Argument helptext", "Perhaps you meant")) and len(sec) > 1:
+            text += ("; expected: " if sec[0].startswith("Argument") else "; did you mean: ") + sec[1]
+    return text
+
+
+def parse_options(cls: type[T], argv: list[str], prog: str, description: str | None = None,
+                  default: T | None = None, **tyro_kwargs: Any) -> T:
+    """`cls` filled from `argv` by tyro (field docstrings as help), its checks run after parsing
+    (`validate_tree`: every nested dataclass's `validate`). A parse error or a failed check is
+    one line `prog: ...` on stderr and SystemExit(2); `--help` exits 0 as usual."""
+    errors = io.StringIO()
+    try:
+        with deferred_checks(), contextlib.redirect_stderr(errors):
+            opts = tyro.cli(cls, args=list(argv), prog=prog, description=description, default=default, **tyro_kwargs)
+    except SystemExit as exc:
+        if exc.code:
+            print(f"{prog}: {one_line(errors.getvalue())}", file=sys.stderr)
+        raise
+    try:
+        validate_tree(opts)
+    except ValueError as exc:
+        print(f"{prog}: invalid configuration: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
+    return opts
