@@ -15,20 +15,7 @@ import argparse
 import signal
 import threading
 
-from ray.cluster_utils import Cluster
-
-
-def start(rollout_per_worker: int = 1, cpus_per_worker: int = 1, learner_slots: int = 1, workers: int = 2) -> Cluster:
-    cluster = Cluster(
-        initialize_head=True,
-        connect=False,
-        head_node_args={"num_cpus": 0, "resources": {"morphmimic_sampler": 1, "morphmimic_learner": learner_slots},
-                        "include_dashboard": False},
-    )
-    for _ in range(workers):
-        cluster.add_node(num_cpus=cpus_per_worker, resources={"morphmimic_rollout": rollout_per_worker})
-    cluster.wait_for_nodes()
-    return cluster
+from learner.cluster import start_test_cluster as start
 
 
 def main() -> int:

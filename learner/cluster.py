@@ -141,3 +141,24 @@ def shutdown(ctx: RayContext | None) -> None:
 
     if ctx is not None and ray.is_initialized():
         ray.shutdown()
+
+
+def start_test_cluster(rollout_per_worker: int = 1, cpus_per_worker: int = 1, learner_slots: int = 1, workers: int = 2):
+    """A Ray head and `workers` worker nodes, all on this machine (loopback), tagged with the
+    custom resources the learner places by: the head hosts the sampler and up to
+    `learner_slots` data-parallel learner replicas, each worker `rollout_per_worker` rollout
+    actors on `cpus_per_worker` CPUs. Returns the `ray.cluster_utils.Cluster` (its `address`;
+    `shutdown()` stops every node). The local two-worker test cluster (`deploy/local_cluster.py`)
+    and the scaling and soak benchmarks run on it."""
+    from ray.cluster_utils import Cluster  # lazy: heavy (ray), only when a test cluster is wanted
+
+    cluster = Cluster(
+        initialize_head=True,
+        connect=False,
+        head_node_args={"num_cpus": 0, "resources": {SAMPLER_RESOURCE: 1, LEARNER_RESOURCE: learner_slots},
+                        "include_dashboard": False},
+    )
+    for _ in range(workers):
+        cluster.add_node(num_cpus=cpus_per_worker, resources={ROLLOUT_RESOURCE: rollout_per_worker})
+    cluster.wait_for_nodes()
+    return cluster

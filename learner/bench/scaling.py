@@ -128,7 +128,7 @@ def main(argv: list[str]) -> int:
     cluster = None
     address = args.address
     if not address:
-        from deploy.local_cluster import start
+        from learner.cluster import start_test_cluster as start
 
         cluster = start(rollout_per_worker=1, cpus_per_worker=1, learner_slots=max(args.replicas) - 1,
                         workers=max(args.actors))

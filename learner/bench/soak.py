@@ -48,7 +48,7 @@ def main(argv: list[str]) -> int:
 
     import ray
 
-    from deploy.local_cluster import start
+    from learner.cluster import start_test_cluster as start
     from learner.train import Run, train
 
     rng = np.random.default_rng(args.seed)

@@ -19,7 +19,7 @@ pytestmark = pytest.mark.cluster
 
 @pytest.fixture(scope="module")
 def two_worker_cluster():
-    from deploy.local_cluster import start
+    from learner.cluster import start_test_cluster as start
 
     cluster = start(rollout_per_worker=1, cpus_per_worker=1)
     yield cluster

@@ -59,7 +59,7 @@ def _assert_every_unroll_accounted(run: Run) -> None:
 
 @pytest.fixture
 def cluster():
-    from deploy.local_cluster import start
+    from learner.cluster import start_test_cluster as start
 
     c = start(rollout_per_worker=1, cpus_per_worker=1)
     yield c
