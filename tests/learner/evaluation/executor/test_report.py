@@ -150,7 +150,7 @@ def test_executor_options_on_a_shape_checkpoint_are_a_usage_error_naming_them(op
     from learner.evaluation import evaluate
 
     with pytest.raises(SystemExit) as exc:
-        evaluate.main(["--checkpoint", str(Path(__file__).resolve().parents[3] / "learner/pretrained/fish"), *option])
+        evaluate.main(["--checkpoint", str(Path(__file__).resolve().parents[4] / "learner/pretrained/fish"), *option])
     assert exc.value.code == 2
     assert ("task 'fish' is not the executor; --clips, --starts, --zero-action, --set are executor options"
             in capsys.readouterr().err)
