@@ -3,19 +3,22 @@ machine (loopback), tagged with the custom resources the learner places by: the 
 sampler and up to `--learner-slots` data-parallel learner replicas beside the training process
 (`--learner.replicas`), each worker `--rollout-per-worker` rollout actors.
 
-    python deploy/local_cluster.py            # prints the address, runs until Ctrl-C
-    RAY_ADDRESS=<printed address> python -m learner.main --mode cluster
+    morphmimic local-cluster                  # prints the address, runs until Ctrl-C
+    RAY_ADDRESS=<printed address> morphmimic train --mode cluster
 
 Ctrl-C (or SIGTERM) stops all three nodes.
 """
 
 from __future__ import annotations
 
-import argparse
 import signal
 import threading
+from dataclasses import dataclass
+from typing import ClassVar
 
 from ray.cluster_utils import Cluster
+
+from common.config_limits import Limit, at_least, check_limits, validated
 
 
 def start(rollout_per_worker: int = 1, cpus_per_worker: int = 1, learner_slots: int = 1, workers: int = 2) -> Cluster:
@@ -31,20 +34,33 @@ def start(rollout_per_worker: int = 1, cpus_per_worker: int = 1, learner_slots: 
     return cluster
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--rollout-per-worker", type=int, default=1, help="rollout actors each worker node may host")
-    parser.add_argument("--cpus-per-worker", type=int, default=1, help="CPUs each worker node advertises")
-    parser.add_argument("--learner-slots", type=int, default=1,
-                        help="data-parallel learner replicas the head may host besides the training process")
-    args = parser.parse_args()
-    if args.rollout_per_worker < 1 or args.cpus_per_worker < 1 or args.learner_slots < 0:
-        parser.error("--rollout-per-worker and --cpus-per-worker must be at least 1, --learner-slots at least 0")
+@validated
+@dataclass
+class LocalClusterOptions:
+    rollout_per_worker: int = 1
+    """Rollout actors each worker node may host."""
+    cpus_per_worker: int = 1
+    """CPUs each worker node advertises."""
+    learner_slots: int = 1
+    """Data-parallel learner replicas the head may host besides the training process."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {"rollout_per_worker": at_least(1), "cpus_per_worker": at_least(1),
+                                          "learner_slots": at_least(0)}
+    FLAG_PREFIX: ClassVar[str] = ""
+
+    def validate(self) -> None:
+        check_limits(self)
+
+
+def main(argv: list[str]) -> int:
+    from learner.cli_options import parse_options
+
+    args = parse_options(LocalClusterOptions, argv, prog="morphmimic local-cluster", description=__doc__)
     cluster = start(args.rollout_per_worker, args.cpus_per_worker, args.learner_slots)
     actors = 2 * args.rollout_per_worker
     print(f"two-worker test cluster up: head + 2 workers at {cluster.address}")
     print("point the learner at it:")
-    print(f"  RAY_ADDRESS={cluster.address} python -m learner.main --mode cluster --actors.num-actors {actors}")
+    print(f"  RAY_ADDRESS={cluster.address} morphmimic train --mode cluster --actors.num-actors {actors}")
     print("stop it: Ctrl-C here (or kill -TERM this process)", flush=True)
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -53,7 +69,3 @@ def main() -> int:
     cluster.shutdown()
     print("cluster stopped")
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -26,13 +26,63 @@ from __future__ import annotations
 import contextlib
 import io
 import sys
-from typing import Any, TypeVar
+from typing import Annotated, Any, NoReturn, TypeVar
 
 import tyro
+from tyro.constructors import PrimitiveConstructorSpec
 
 from common.config_limits import deferred_checks, validate_tree
 
 T = TypeVar("T")
+
+
+def _comma_list(kind: type, metavar: str) -> PrimitiveConstructorSpec:
+    """One flag value holding comma-separated items (`--widths 128,256`) read as a tuple of
+    `kind`; an empty or unreadable item is a parse error naming the value."""
+
+    def parse(args: list[str]) -> tuple:
+        parts = [x.strip() for x in args[0].split(",") if x.strip()]
+        if not parts:
+            raise ValueError(f"{args[0]!r}: give comma-separated values, e.g. {metavar}")
+        try:
+            return tuple(kind(x) for x in parts)
+        except ValueError:
+            raise ValueError(f"{args[0]!r}: give comma-separated values, e.g. {metavar}") from None
+
+    return PrimitiveConstructorSpec(nargs=1, metavar=metavar, instance_from_str=parse,
+                                    is_instance=lambda v: isinstance(v, tuple),
+                                    str_from_instance=lambda v: [",".join(map(str, v))])
+
+
+CommaInts = Annotated[tuple[int, ...], _comma_list(int, "1,2,4")]
+"""`--actors 1,2,4`: integers in one comma-separated value (limits check each)."""
+CommaFloats = Annotated[tuple[float, ...], _comma_list(float, "0.5,1.0")]
+"""`--lengths 5,20`: numbers in one comma-separated value."""
+CommaStrs = Annotated[tuple[str, ...], _comma_list(str, "a,b")]
+"""`--presets reach,executor`: names in one comma-separated value."""
+
+
+def scan_flag(argv: list[str], name: str, default: str) -> tuple[str, list[str]]:
+    """The value of `--name VALUE` or `--name=VALUE` in `argv` (the last one given, else
+    `default`) and `argv` without it: an option that picks the other options' defaults (`--preset`).
+    Raises ValueError when the flag ends `argv` without a value."""
+    value, rest, i = default, [], 0
+    while i < len(argv):
+        arg = argv[i]
+        if arg == "--":
+            rest += argv[i:]
+            break
+        if arg == name:
+            if i + 1 >= len(argv):
+                raise ValueError(f"{name} expects a value")
+            value, i = argv[i + 1], i + 2
+            continue
+        if arg.startswith(name + "="):
+            value = arg[len(name) + 1:]
+        else:
+            rest.append(arg)
+        i += 1
+    return value, rest
 
 
 def one_line(box: str) -> str:
@@ -84,3 +134,10 @@ def parse_options(cls: type[T], argv: list[str], prog: str, description: str | N
         print(f"{prog}: invalid configuration: {exc}", file=sys.stderr)
         raise SystemExit(2) from None
     return opts
+
+
+def refuse(prog: str, message: str) -> NoReturn:
+    """End the command as a usage error found after parsing (a file that exists, a value the
+    data refuses): one line `prog: message` on stderr, exit 2."""
+    print(f"{prog}: {message}", file=sys.stderr)
+    raise SystemExit(2)
