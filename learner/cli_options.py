@@ -26,6 +26,7 @@ from __future__ import annotations
 import contextlib
 import io
 import sys
+from collections.abc import Callable
 from typing import Annotated, Any, NoReturn, TypeVar
 
 import tyro
@@ -36,29 +37,30 @@ from common.config_limits import deferred_checks, validate_tree
 T = TypeVar("T")
 
 
-def _comma_list(kind: type, metavar: str) -> PrimitiveConstructorSpec:
+def comma_list(item: Callable[[str], Any], example: str, what: str = "comma-separated values") -> PrimitiveConstructorSpec:
     """One flag value holding comma-separated items (`--widths 128,256`) read as a tuple of
-    `kind`; an empty or unreadable item is a parse error naming the value."""
+    `item(text)`; an empty value or an item `item` refuses (ValueError) is a parse error naming
+    the value: "'40,many': give <what>, e.g. <example>"."""
 
     def parse(args: list[str]) -> tuple:
         parts = [x.strip() for x in args[0].split(",") if x.strip()]
-        if not parts:
-            raise ValueError(f"{args[0]!r}: give comma-separated values, e.g. {metavar}")
         try:
-            return tuple(kind(x) for x in parts)
+            if parts:
+                return tuple(item(x) for x in parts)
         except ValueError:
-            raise ValueError(f"{args[0]!r}: give comma-separated values, e.g. {metavar}") from None
+            pass
+        raise ValueError(f"{args[0]!r}: give {what}, e.g. {example}")
 
-    return PrimitiveConstructorSpec(nargs=1, metavar=metavar, instance_from_str=parse,
-                                    is_instance=lambda v: isinstance(v, tuple),
-                                    str_from_instance=lambda v: [",".join(map(str, v))])
+    return PrimitiveConstructorSpec(nargs=1, metavar=example.upper() if example.isalpha() else example,
+                                    instance_from_str=parse, is_instance=lambda v: isinstance(v, tuple),
+                                    str_from_instance=lambda v: ["None" if v is None else ",".join(map(str, v))])
 
 
-CommaInts = Annotated[tuple[int, ...], _comma_list(int, "1,2,4")]
+CommaInts = Annotated[tuple[int, ...], comma_list(int, "1,2,4", "comma-separated integers")]
 """`--actors 1,2,4`: integers in one comma-separated value (limits check each)."""
-CommaFloats = Annotated[tuple[float, ...], _comma_list(float, "0.5,1.0")]
+CommaFloats = Annotated[tuple[float, ...], comma_list(float, "0.5,1.0", "comma-separated numbers")]
 """`--lengths 5,20`: numbers in one comma-separated value."""
-CommaStrs = Annotated[tuple[str, ...], _comma_list(str, "a,b")]
+CommaStrs = Annotated[tuple[str, ...], comma_list(str, "a,b", "comma-separated names")]
 """`--presets reach,executor`: names in one comma-separated value."""
 
 

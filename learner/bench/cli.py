@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+
 BENCHMARKS: dict[str, tuple[str, str]] = {
     "throughput": ("learner.bench.throughput", "end-to-end collection vs pure simulation, learner share, transport bytes/s"),
     "learner": ("learner.bench.learner_update", "PPO update per minibatch step: the reference loop vs PPO.update, same data"),
