@@ -46,13 +46,21 @@ class Limit:
 
     def describe(self) -> str:
         kind = "an integer" if self.integer else "a finite number"
+        lo, hi = _bound(self.lo), _bound(self.hi)
         if self.lo is not None and self.hi is not None:
-            return f"{kind} in {'(' if self.lo_open else '['}{self.lo:g}, {self.hi:g}{')' if self.hi_open else ']'}"
+            return f"{kind} in {'(' if self.lo_open else '['}{lo}, {hi}{')' if self.hi_open else ']'}"
         if self.lo is not None:
-            return f"{kind} {'>' if self.lo_open else '>='} {self.lo:g}"
+            return f"{kind} {'>' if self.lo_open else '>='} {lo}"
         if self.hi is not None:
-            return f"{kind} {'<' if self.hi_open else '<='} {self.hi:g}"
+            return f"{kind} {'<' if self.hi_open else '<='} {hi}"
         return kind
+
+
+def _bound(x: float | None) -> str:
+    """A limit's bound as written: whole numbers in full (4294967295, not 4.29497e+09)."""
+    if x is None:
+        return ""
+    return str(int(x)) if float(x).is_integer() and abs(x) < 1e15 else f"{x:g}"
 
 
 def at_least(lo: float, integer: bool = True) -> Limit:
@@ -68,6 +76,10 @@ def between(lo: float, hi: float, lo_open: bool = False, hi_open: bool = False, 
 
 
 FINITE = Limit()
+SEED = between(0, 2**32 - 1, integer=True)
+"""A random seed: numpy's generators refuse negative seeds, torch's manual_seed overflows past 2^64."""
+PORT = between(0, 65535, integer=True)
+"""A TCP/UDP port (0: the system picks a free one)."""
 
 
 def flag(prefix: str, name: str) -> str:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import importlib
 import sys
+from collections.abc import Callable
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("learner.main", "train a controller (same as `python -m learner.main`)"),
@@ -22,16 +23,21 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "robustness": ("learner.evaluation.executor.robustness", "zero-shot robustness: speed, projectiles, mass (UniCon Table 2)"),
     "play": ("learner.live.play", "run a checkpoint live or render it to an MP4 (schedulers: dataset, stitch, keyboard, video)"),
     "studio": ("learner.live.studio", "a browser studio: a checkpoint live in 3-D with shape sliders, schedulers, projectiles, plots"),
-    "character": ("common.characters.cli", "build a character from a preset and shape values; write MJCF and PNG"),
-    "motion": ("common.motion.cli", "import, view and check motion clips"),
+    "character": ("learner.commands.character", "build a character from a preset and shape values; write MJCF and PNG"),
+    "motion": ("learner.commands.motion", "import, view and check motion clips"),
+    "stroke-speed": ("learner.tools.stroke_speed", "how fast the base swimmers' strokes carry them, per PD stiffening"),
+    "stroke-fit": ("learner.tools.stroke_fit", "measure random swimmer shapes' stroke speeds and fit the per-shape speed model"),
     "send-poses": ("learner.live.pose_sender", "send a clip's joint positions over UDP to the video scheduler (morphmimic play --scheduler video)"),
+    "local-cluster": ("learner.commands.local_cluster", "a Ray head and two worker nodes on this machine, to train on with --mode cluster"),
     "bench": ("learner.bench.cli", "benchmarks: throughput, learner, scaling, capacity, replicas, characters, episodes, env-steps, sampler, soak, curve"),
 }
 
 
-def dispatch(prog: str, what: str, table: dict[str, tuple[str, str]], argv: list[str]) -> int:
-    """Run `table[argv[0]]`'s module's `main(argv[1:])`; `--help` lists the table; an unknown
-    name is a one-line usage error (exit 2). Also `morphmimic bench`'s dispatcher."""
+def dispatch(prog: str, what: str, table: dict[str, tuple[str | Callable[[list[str]], int], str]],
+             argv: list[str]) -> int:
+    """Run `table[argv[0]]`'s `main(argv[1:])`: a module's (named by a string, imported only when
+    chosen) or the function given; `--help` lists the table; an unknown name is a one-line usage
+    error (exit 2). Also the dispatcher of `morphmimic bench` and `morphmimic motion`."""
     width = max(len(name) for name in table)
     lines = [f"usage: {prog} <{what}> [options]   ({prog} <{what}> --help for its options)", "", f"{what}s:"]
     lines += [f"  {name:<{width}}  {text}" for name, (_, text) in table.items()]
@@ -41,7 +47,9 @@ def dispatch(prog: str, what: str, table: dict[str, tuple[str, str]], argv: list
     if argv[0] not in table:
         print(f"{prog}: unknown {what} {argv[0]!r}; choose one of {', '.join(table)}", file=sys.stderr)
         return 2
-    return int(importlib.import_module(table[argv[0]][0]).main(argv[1:]) or 0)
+    target = table[argv[0]][0]
+    run = importlib.import_module(target).main if isinstance(target, str) else target
+    return int(run(argv[1:]) or 0)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -26,13 +26,65 @@ from __future__ import annotations
 import contextlib
 import io
 import sys
-from typing import Any, TypeVar
+from collections.abc import Callable
+from typing import Annotated, Any, NoReturn, TypeVar
 
 import tyro
+from tyro.constructors import PrimitiveConstructorSpec
 
 from common.config_limits import deferred_checks, validate_tree
 
 T = TypeVar("T")
+
+
+def comma_list(item: Callable[[str], Any], example: str, what: str = "comma-separated values") -> PrimitiveConstructorSpec:
+    """One flag value holding comma-separated items (`--widths 128,256`) read as a tuple of
+    `item(text)`; an empty value or an item `item` refuses (ValueError) is a parse error naming
+    the value: "'40,many': give <what>, e.g. <example>"."""
+
+    def parse(args: list[str]) -> tuple:
+        parts = [x.strip() for x in args[0].split(",") if x.strip()]
+        try:
+            if parts:
+                return tuple(item(x) for x in parts)
+        except ValueError:
+            pass
+        raise ValueError(f"{args[0]!r}: give {what}, e.g. {example}")
+
+    return PrimitiveConstructorSpec(nargs=1, metavar=example.upper() if example.isalpha() else example,
+                                    instance_from_str=parse, is_instance=lambda v: isinstance(v, tuple),
+                                    str_from_instance=lambda v: ["None" if v is None else ",".join(map(str, v))])
+
+
+CommaInts = Annotated[tuple[int, ...], comma_list(int, "1,2,4", "comma-separated integers")]
+"""`--actors 1,2,4`: integers in one comma-separated value (limits check each)."""
+CommaFloats = Annotated[tuple[float, ...], comma_list(float, "0.5,1.0", "comma-separated numbers")]
+"""`--lengths 5,20`: numbers in one comma-separated value."""
+CommaStrs = Annotated[tuple[str, ...], comma_list(str, "a,b", "comma-separated names")]
+"""`--presets reach,executor`: names in one comma-separated value."""
+
+
+def scan_flag(argv: list[str], name: str, default: str) -> tuple[str, list[str]]:
+    """The value of `--name VALUE` or `--name=VALUE` in `argv` (the last one given, else
+    `default`) and `argv` without it: an option that picks the other options' defaults (`--preset`).
+    Raises ValueError when the flag ends `argv` without a value."""
+    value, rest, i = default, [], 0
+    while i < len(argv):
+        arg = argv[i]
+        if arg == "--":
+            rest += argv[i:]
+            break
+        if arg == name:
+            if i + 1 >= len(argv):
+                raise ValueError(f"{name} expects a value")
+            value, i = argv[i + 1], i + 2
+            continue
+        if arg.startswith(name + "="):
+            value = arg[len(name) + 1:]
+        else:
+            rest.append(arg)
+        i += 1
+    return value, rest
 
 
 def one_line(box: str) -> str:
@@ -84,3 +136,10 @@ def parse_options(cls: type[T], argv: list[str], prog: str, description: str | N
         print(f"{prog}: invalid configuration: {exc}", file=sys.stderr)
         raise SystemExit(2) from None
     return opts
+
+
+def refuse(prog: str, message: str) -> NoReturn:
+    """End the command as a usage error found after parsing (a file that exists, a value the
+    data refuses): one line `prog: message` on stderr, exit 2."""
+    print(f"{prog}: {message}", file=sys.stderr)
+    raise SystemExit(2)

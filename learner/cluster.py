@@ -148,7 +148,7 @@ def start_test_cluster(rollout_per_worker: int = 1, cpus_per_worker: int = 1, le
     custom resources the learner places by: the head hosts the sampler and up to
     `learner_slots` data-parallel learner replicas, each worker `rollout_per_worker` rollout
     actors on `cpus_per_worker` CPUs. Returns the `ray.cluster_utils.Cluster` (its `address`;
-    `shutdown()` stops every node). The local two-worker test cluster (`deploy/local_cluster.py`)
+    `shutdown()` stops every node). The local two-worker test cluster (`morphmimic local-cluster`)
     and the scaling and soak benchmarks run on it."""
     from ray.cluster_utils import Cluster  # lazy: heavy (ray), only when a test cluster is wanted
 

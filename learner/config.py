@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from typing import ClassVar, Literal, get_args, get_origin, get_type_hints
 
 from actors.config import ActorConfig
-from common.config_limits import Limit, above, at_least, between, check_limits, validated
+from common.config_limits import SEED, Limit, above, at_least, between, check_limits, validated
 from common.policy import PolicyConfig
 from common.tasks.base import TaskConfig
 from common.tasks.body_config import BodyConfig
@@ -118,7 +118,7 @@ class RunConfig:
     FLAG_PREFIX: ClassVar[str] = ""
     LIMITS: ClassVar[dict[str, Limit]] = {
         "port_base": between(0, 65532, integer=True), "total_env_steps": at_least(1), "max_iterations": at_least(0),
-        "steps_per_iteration": at_least(1), "max_policy_lag": at_least(0), "seed": between(0, 2**32 - 1, integer=True),
+        "steps_per_iteration": at_least(1), "max_policy_lag": at_least(0), "seed": SEED,
         "checkpoint_every": at_least(1), "keep_checkpoints": at_least(1), "value_pairs_per_iteration": at_least(0),
         "vm_plot_every": at_least(0), "actor_max_restarts": at_least(-1), "stall_timeout_s": above(0),
     }

@@ -1,7 +1,7 @@
 """`morphmimic distill`: start a torque executor from a PD executor (DAgger), then train it on.
 
     morphmimic distill --teacher learner/pretrained/executor --out runs/executor-distilled
-    python -m learner.main --preset executor --name executor-torque --resume runs/executor-distilled/ckpt/00000900
+    morphmimic train --preset executor --name executor-torque --resume runs/executor-distilled/ckpt/00000900
 
 UniCon 2020 (METHOD.md B) trains its torque executor from scratch; on this 2-core machine no
 torque run survived UniCon's per-term rule past its 30-step wait in 3 M steps
@@ -34,18 +34,20 @@ teacher's plus the distillation's, so a budget counts every transition.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 import mujoco
 import numpy as np
 import torch
 
+from common.config_limits import SEED, Limit, above, at_least, check_limits, validated
 from common.tasks.executor.env import pd_lead_s, pd_target
 from learner import checkpoint
-from learner.evaluation import cli_args
+from learner.cli_options import parse_options, refuse
 
 
 class TorqueLabeler:
@@ -177,30 +179,46 @@ def distill(loaded, out: str | Path, rounds: int = 6, steps_per_round: int = 20_
     return checkpoint.save(Path(out) / "ckpt", learner.iteration, learner.state_dict(), keep=1)
 
 
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="morphmimic distill", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--teacher", required=True, help="a PD executor checkpoint (run dir, ckpt dir or learner/pretrained/<name>)")
-    p.add_argument("--out", required=True, help="run directory to write (its ckpt/<iteration>/state.pt)")
-    p.add_argument("--rounds", type=cli_args.positive_int, default=6, help="DAgger rounds (the first acts with the labels)")
-    p.add_argument("--steps", type=cli_args.positive_int, default=20_000, help="control steps collected per round")
-    p.add_argument("--epochs", type=cli_args.positive_int, default=20, help="passes over all rounds' states after each round")
-    p.add_argument("--lr", type=cli_args.positive_float, default=1e-3, help="Adam step size of the fit")
-    p.add_argument("--seed", type=cli_args.seed, default=0, help="seed of the student's weights, resets and fit (0 to 2^32-1)")
-    args = p.parse_args(argv)
+PROG = "morphmimic distill"
+
+
+@validated
+@dataclass
+class DistillOptions:
+    teacher: str
+    """A PD executor checkpoint (run dir, ckpt dir or learner/pretrained/<name>)."""
+    out: str
+    """Run directory to write (its ckpt/<iteration>/state.pt)."""
+    rounds: int = 6
+    """DAgger rounds (the first acts with the labels)."""
+    steps: int = 20_000
+    """Control steps collected per round."""
+    epochs: int = 20
+    """Passes over all rounds' states after each round."""
+    lr: float = 1e-3
+    """Adam step size of the fit."""
+    seed: int = 0
+    """Seed of the student's weights, resets and fit."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {"rounds": at_least(1), "steps": at_least(1), "epochs": at_least(1),
+                                          "lr": above(0), "seed": SEED}
+    FLAG_PREFIX: ClassVar[str] = ""
+
+    def validate(self) -> None:
+        check_limits(self)
+
+
+def main(argv: list[str]) -> int:
+    args = parse_options(DistillOptions, argv, prog=PROG, description=__doc__)
     out = Path(args.out)
     if out.exists() and not out.is_dir():
-        p.error(f"--out {out} is a file; give a new directory")
+        refuse(PROG, f"--out {out} is a file; give a new directory")
     if checkpoint.list_checkpoints(out / "ckpt"):
-        p.error(f"--out {out} already holds checkpoints; give a new directory")
+        refuse(PROG, f"--out {out} already holds checkpoints; give a new directory")
     try:
         loaded = load_teacher(args.teacher)
     except ValueError as exc:
-        p.error(str(exc))
+        refuse(PROG, str(exc))
     path = distill(loaded, out, args.rounds, args.steps, args.epochs, args.lr, args.seed)
-    print(f"[distill] wrote {path}; continue with: python -m learner.main --preset executor --name <name> --resume {path}")
+    print(f"[distill] wrote {path}; continue with: morphmimic train --preset executor --name <name> --resume {path}")
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,20 +1,19 @@
-"""`python -m learner.main` (also `morphmimic train`): train a controller.
+"""`morphmimic train` (also `python -m learner.main`): train a controller.
 
-    python -m learner.main                          # the default preset, single machine
-    python -m learner.main --preset reach-tiny --mode serial
-    python -m learner.main --ppo.lr 1e-4 --actors.num-actors 4 --total-env-steps 2000000
-    python -m learner.main --help                   # every option, with its default
+    morphmimic train                          # the default preset, single machine
+    morphmimic train --preset reach-tiny --mode serial
+    morphmimic train --ppo.lr 1e-4 --actors.num-actors 4 --total-env-steps 2000000
+    morphmimic train --help                   # every option, with its default
 
 `--preset NAME` picks the starting configuration; every other option overrides a field of it.
 """
 
 from __future__ import annotations
 
-import argparse
 import logging
 import sys
 
-from learner.cli_options import parse_options
+from learner.cli_options import parse_options, scan_flag
 from learner.config import RunConfig
 from learner.presets import PRESETS
 
@@ -22,11 +21,13 @@ DEFAULT_PRESET = "reach"
 
 
 def parse(argv: list[str]) -> RunConfig:
-    pre = argparse.ArgumentParser(add_help=False)
-    pre.add_argument("--preset", default=DEFAULT_PRESET)
-    known, rest = pre.parse_known_args(argv)
-    if known.preset not in PRESETS:
-        print(f"python -m learner.main: --preset {known.preset!r} is unknown; presets: {', '.join(PRESETS)}", file=sys.stderr)
+    try:
+        preset, rest = scan_flag(argv, "--preset", DEFAULT_PRESET)
+    except ValueError as exc:
+        print(f"python -m learner.main: {exc}; presets: {', '.join(PRESETS)}", file=sys.stderr)
+        raise SystemExit(2) from None
+    if preset not in PRESETS:
+        print(f"python -m learner.main: --preset {preset!r} is unknown; presets: {', '.join(PRESETS)}", file=sys.stderr)
         raise SystemExit(2)
     description = (
         __doc__
@@ -36,7 +37,7 @@ def parse(argv: list[str]) -> RunConfig:
         + "\n".join(f"  {name:<{max(map(len, PRESETS))}}  {text}" for name, (text, _) in PRESETS.items())
     )
     cfg = parse_options(RunConfig, rest, prog="python -m learner.main", description=description,
-                        default=PRESETS[known.preset][1])
+                        default=PRESETS[preset][1])
     try:
         # The task's own checks (its parameter space, its clips) before any run folder exists.
         from common.tasks.registry import task_check, task_clips, task_space

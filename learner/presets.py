@@ -146,3 +146,11 @@ PRESETS["executor-tiny"] = (
         actors=ActorConfig(num_actors=1, envs_per_actor=4, unroll_length=32),
     ),
 )
+
+
+def check_presets(flag: str, names: tuple[str, ...] | list[str]) -> None:
+    """ValueError naming `flag` and those of `names` that are not presets (a command's preset options)."""
+    unknown = [n for n in names if n not in PRESETS]
+    if unknown:
+        shown = repr(unknown[0]) + " is" if len(unknown) == 1 else f"{unknown} are"
+        raise ValueError(f"{flag} {shown} unknown; presets: {', '.join(PRESETS)}")

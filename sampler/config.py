@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
-from common.config_limits import Limit, above, at_least, between, check_limits, validated
+from common.config_limits import PORT, Limit, above, at_least, between, check_limits, validated
 
 
 @dataclass(frozen=True)
@@ -72,7 +72,7 @@ class SamplerConfig:
         "thin": at_least(1), "vbar_floor": above(0), "vm_hidden": at_least(1), "vm_lr": above(0),
         "vbar_rate": between(0, 1, lo_open=True), "vm_fit_steps": at_least(0), "vm_minibatch": at_least(1),
         "max_pending_pairs": at_least(1), "max_draw": at_least(1), "probe_points": at_least(1), "seed": at_least(0),
-        "port": between(0, 65535, integer=True),
+        "port": PORT,
     }
     """Allowed values of the numeric fields (`common.config_limits`)."""
 

@@ -48,19 +48,20 @@ move with the machine's load (the header prints the load average): read the rati
 
 from __future__ import annotations
 
-import argparse
 import copy
 import dataclasses
 import json
 import math
 import multiprocessing as mp
-import tempfile
 import os
 import statistics
+import tempfile
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from queue import Empty
+from typing import ClassVar
 
 import numpy as np
 import torch
@@ -68,14 +69,16 @@ import torch.distributed as dist
 import zmq
 
 from common import wire
+from common.config_limits import Limit, above, at_least, check_limits, validated
 from common.policy import GaussianPolicy, ValueNet
 from common.tasks.registry import make_env
 from learner import data_parallel
 from learner.bench.learner_update import random_batch
+from learner.cli_options import CommaInts, CommaStrs, parse_options
 from learner.config import RunConfig
 from learner.ppo import PPO, Batch
-from learner.evaluation.cli_args import positive_float, positive_int, positive_ints
-from learner.presets import PRESETS
+from learner.presets import PRESETS, check_presets
+
 
 SERVER_BATCHES = (64, 256, 1024)
 """Inference batch sizes a central server would run, besides each actor's own."""
@@ -382,20 +385,34 @@ def write(out: Path, meta: dict, results: list[dict]) -> None:
     (out / "capacity.md").write_text("\n".join(lines))
 
 
+PROG = "morphmimic bench capacity"
+
+
+@validated
+@dataclass
+class CapacityBenchOptions:
+    presets: CommaStrs = ("executor", "lower_biped")
+    """Comma-separated training presets."""
+    widths: CommaInts = (128, 256, 512, 1024)
+    """Hidden widths of the 3-layer nets."""
+    repeats: int = 5
+    """Timed blocks (updates: at most) per measurement."""
+    update_budget_s: float = 8.0
+    """No further timed update of a width once its timed updates took this long."""
+    out: str = ""
+    """Directory for capacity.json and capacity.md."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {"widths": at_least(1), "repeats": at_least(1), "update_budget_s": above(0)}
+    FLAG_PREFIX: ClassVar[str] = ""
+
+    def validate(self) -> None:
+        check_presets("--presets", self.presets)
+        check_limits(self)
+
+
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="morphmimic bench capacity", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--presets", default="executor,lower_biped", help="comma-separated training presets")
-    parser.add_argument("--widths", type=positive_ints, default=[128, 256, 512, 1024], help="hidden widths of the 3-layer nets")
-    parser.add_argument("--repeats", type=positive_int, default=5, help="timed blocks (updates: at most) per measurement")
-    parser.add_argument("--update-budget-s", type=positive_float, default=8.0,
-                        help="no further timed update of a width once its timed updates took this long")
-    parser.add_argument("--out", default="", help="directory for capacity.json and capacity.md")
-    args = parser.parse_args(argv)
-    presets = [p.strip() for p in args.presets.split(",") if p.strip()]
-    unknown = [p for p in presets if p not in PRESETS]
-    if unknown or not presets:
-        parser.error(f"--presets {args.presets!r}: unknown {unknown}; presets: {', '.join(PRESETS)}")
+    args = parse_options(CapacityBenchOptions, argv, prog=PROG, description=__doc__)
+    presets = args.presets
     torch.set_num_threads(1)
     load = os.getloadavg()
     print(f"{os.cpu_count()} cores, torch {torch.__version__} on 1 thread, load average {load[0]:.1f} "
@@ -411,9 +428,3 @@ def main(argv: list[str]) -> int:
         write(Path(args.out), meta, results)
         print(f"wrote {args.out}/capacity.json and capacity.md")
     return 0
-
-
-if __name__ == "__main__":
-    import sys
-
-    raise SystemExit(main(sys.argv[1:]))

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+
 BENCHMARKS: dict[str, tuple[str, str]] = {
     "throughput": ("learner.bench.throughput", "end-to-end collection vs pure simulation, learner share, transport bytes/s"),
     "learner": ("learner.bench.learner_update", "PPO update per minibatch step: the reference loop vs PPO.update, same data"),
-    "characters": ("common.characters.bench", "build/compile per shape, on-the-fly change, sim cost per control step"),
+    "characters": ("learner.bench.characters", "build/compile per shape, on-the-fly change, sim cost per control step"),
     "episodes": ("learner.bench.episodes", "per shape task: reset on a new body vs a control step, and the resets' share"),
     "env-steps": ("learner.bench.env_steps", "a control step in this tree vs another git revision, and whether both compute the same"),
-    "sampler": ("sampler.bench", "MCMC refill time vs a policy iteration, draw latency through the socket"),
+    "sampler": ("learner.bench.sampler", "MCMC refill time vs a policy iteration, draw latency through the socket"),
     "soak": ("learner.bench.soak", "train while injecting faults; counts lost unrolls"),
     "curve": ("learner.bench.curve", "the unroll stream and a sampler round trip with CURVE vs plain sockets"),
     "replicas": ("learner.bench.replicas", "one PPO update in one process vs shared by data-parallel replicas, same batch"),

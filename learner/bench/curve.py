@@ -10,16 +10,19 @@ second for both and their ratio; the end-to-end effect on training is
 
 from __future__ import annotations
 
-import argparse
 import statistics
 import time
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 import zmq
 
 from common import sockets, wire
+from common.config_limits import Limit, at_least, check_limits, validated
 from common.curve import LEARNER, RunKeys
-from learner.presets import PRESETS
+from learner.cli_options import parse_options
+from learner.presets import PRESETS, check_presets
 
 
 def _unroll(T: int, N: int, obs_dim: int, act_dim: int, n_params: int) -> list:
@@ -67,20 +70,33 @@ def round_trips(request: list, reply: list, n: int, keys: RunKeys | None) -> flo
         router.close(linger=0)
 
 
+PROG = "morphmimic bench curve"
+
+
+@validated
+@dataclass
+class CurveBenchOptions:
+    preset: str = "executor"
+    """Preset whose unroll shape is streamed."""
+    obs_dim: int = 0
+    """Observation size (0: the preset's task)."""
+    messages: int = 200
+    """Unrolls per round and mode."""
+    round_trips: int = 2000
+    """Request/reply pairs per round and mode."""
+    rounds: int = 5
+    """Timed rounds."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {"obs_dim": at_least(0), "messages": at_least(1), "round_trips": at_least(1), "rounds": at_least(1)}
+    FLAG_PREFIX: ClassVar[str] = ""
+
+    def validate(self) -> None:
+        check_presets("--preset", [self.preset])
+        check_limits(self)
+
+
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="morphmimic bench curve", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--preset", default="executor", help="preset whose unroll shape is streamed")
-    parser.add_argument("--obs-dim", type=int, default=0, help="observation size (0: the preset's task)")
-    parser.add_argument("--messages", type=int, default=200, help="unrolls per round and mode")
-    parser.add_argument("--round-trips", type=int, default=2000, help="request/reply pairs per round and mode")
-    parser.add_argument("--rounds", type=int, default=5)
-    args = parser.parse_args(argv)
-    for name in ("messages", "round_trips", "rounds"):
-        if getattr(args, name) < 1:
-            parser.error(f"--{name.replace('_', '-')} = {getattr(args, name)} must be >= 1")
-    if args.preset not in PRESETS:
-        parser.error(f"--preset {args.preset!r} is unknown; presets: {', '.join(PRESETS)}")
+    args = parse_options(CurveBenchOptions, argv, prog=PROG, description=__doc__)
     cfg = PRESETS[args.preset][1]
     obs_dim, act_dim, n_params = args.obs_dim, 2, 1
     if not obs_dim:
@@ -110,9 +126,3 @@ def main(argv: list[str]) -> int:
           f"ratio {med(rt['curve']) / med(rt['plain']):.2f}")
     print(f"  per round, stream ratio  {' '.join(f'{c / p:.2f}' for c, p in zip(mb['curve'], mb['plain']))}")
     return 0
-
-
-if __name__ == "__main__":
-    import sys
-
-    raise SystemExit(main(sys.argv[1:]))

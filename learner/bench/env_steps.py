@@ -15,7 +15,6 @@ temporary worktree, git records it under `.git/worktrees` until it is removed (a
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import os
@@ -24,11 +23,15 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
-from learner.evaluation import cli_args
+from common.config_limits import SEED, Limit, at_least, check_limits, validated
+from learner.cli_options import CommaStrs, parse_options, refuse
+
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_PRESETS = "executor,executor-pd,quadruped,lower_biped,fish"
@@ -94,27 +97,44 @@ def _git(*args: str) -> subprocess.CompletedProcess:
         raise SystemExit("morphmimic bench env-steps: git is not installed; it checks out the other revision") from exc
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="morphmimic bench env-steps", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--against", required=True, help="git revision to compare with (e.g. HEAD~1, a commit id)")
-    parser.add_argument("--presets", default=DEFAULT_PRESETS, help="comma-separated training presets")
-    parser.add_argument("--steps", type=cli_args.positive_int, default=400, help="control steps per preset and round")
-    parser.add_argument("--rounds", type=cli_args.positive_int, default=5, help="rounds, each timing both trees")
-    parser.add_argument("--seed", type=cli_args.seed, default=0)
-    parser.add_argument("--episode-steps", type=cli_args.positive_int, default=None,
-                        help="also restart an episode after this many steps (default: only when it ends)")
-    args = parser.parse_args(argv)
+PROG = "morphmimic bench env-steps"
+
+
+@validated
+@dataclass
+class EnvStepsBenchOptions:
+    against: str
+    """Git revision to compare with (e.g. HEAD~1, a commit id)."""
+    presets: CommaStrs = tuple(DEFAULT_PRESETS.split(","))
+    """Comma-separated training presets."""
+    steps: int = 400
+    """Control steps per preset and round."""
+    rounds: int = 5
+    """Rounds, each timing both trees."""
+    seed: int = 0
+    """Seed of the actions."""
+    episode_steps: int | None = None
+    """Also restart an episode after this many steps (default: only when it ends)."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {"steps": at_least(1), "rounds": at_least(1), "seed": SEED, "episode_steps": at_least(1)}
+    FLAG_PREFIX: ClassVar[str] = ""
+
+    def validate(self) -> None:
+        check_limits(self)
+
+
+def main(argv: list[str]) -> int:
+    args = parse_options(EnvStepsBenchOptions, argv, prog=PROG, description=__doc__)
     from learner.presets import PRESETS
 
-    presets = [p.strip() for p in args.presets.split(",") if p.strip()]
+    presets = list(args.presets)
     unknown = [p for p in presets if p not in PRESETS]
     if unknown:
-        parser.error(f"--presets: unknown {', '.join(unknown)}; choose from {', '.join(sorted(PRESETS))}")
+        refuse(PROG, f"--presets: unknown {', '.join(unknown)}; choose from {', '.join(sorted(PRESETS))}")
     rev = _git("rev-parse", "--verify", f"{args.against}^{{commit}}")
     if rev.returncode != 0:
         shallow = _git("rev-parse", "--is-shallow-repository").stdout.strip() == "true"
-        parser.error(f"--against {args.against!r} is not a commit of this repository ({rev.stderr.strip() or 'git failed'})"
+        refuse(PROG, f"--against {args.against!r} is not a commit of this repository ({rev.stderr.strip() or 'git failed'})"
                      + ("; this clone is shallow: `git fetch --deepen N` or `--unshallow` brings older commits" if shallow else ""))
     with tempfile.TemporaryDirectory(prefix="env-steps-") as tmp:
         other = Path(tmp) / "tree"
@@ -150,7 +170,3 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{name:<14} {this:8.3f} {oth:9.3f} {oth / this:10.2f} {resets[name]:7d} {r_this:9.3f} {r_oth:9.3f} {r_ratio}"
               f"  {'yes' if same else 'NO'}")
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -12,10 +12,15 @@ control steps) and that reset cost is a large share of collection. In one run, p
 
 from __future__ import annotations
 
-import argparse
 import time
+from dataclasses import dataclass
+from typing import Annotated, ClassVar
 
 import numpy as np
+
+from common.config_limits import SEED, Limit, at_least, check_limits, validated
+from learner.cli_options import CommaStrs, comma_list, parse_options
+
 
 SHAPE_TASKS = ("lower_biped", "quadruped", "biped", "fish", "manta")
 
@@ -43,24 +48,36 @@ def bench_task(name: str, resets: int, steps: int, seed: int) -> dict[str, float
     return {"reset_ms": reset_s * 1e3, "step_ms": step_s / steps * 1e3}
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="morphmimic bench episodes", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--tasks", default=",".join(SHAPE_TASKS), help=f"comma-separated shape tasks ({', '.join(SHAPE_TASKS)})")
-    parser.add_argument("--resets", type=int, default=30, help="resets on fresh random shapes per task")
-    parser.add_argument("--steps", type=int, default=600, help="control steps timed per task")
-    parser.add_argument("--lengths", default="40,900", help="two episode lengths (control steps) for the reset share")
-    parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args(argv)
-    tasks = [t for t in args.tasks.split(",") if t]
-    unknown = [t for t in tasks if t not in SHAPE_TASKS]
-    if unknown:
-        parser.error(f"unknown task(s) {unknown}; choose from {', '.join(SHAPE_TASKS)}")
-    try:
-        lengths = [int(x) for x in args.lengths.split(",")]
-    except ValueError:
-        lengths = []
-    if len(lengths) != 2 or min(lengths) < 1:
-        parser.error(f"--lengths {args.lengths!r}: give two positive episode lengths, e.g. 40,900")
+@validated
+@dataclass
+class EpisodeBenchOptions:
+    tasks: CommaStrs = SHAPE_TASKS
+    """Comma-separated shape tasks."""
+    resets: int = 30
+    """Resets on fresh random shapes per task."""
+    steps: int = 600
+    """Control steps timed per task."""
+    lengths: Annotated[tuple[int, ...], comma_list(int, "40,900", "two positive episode lengths")] = (40, 900)
+    """Two episode lengths (control steps) for the reset share."""
+    seed: int = 0
+    """Seed of the shapes and actions."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {"resets": at_least(1), "steps": at_least(1), "lengths": at_least(1),
+                                          "seed": SEED}
+    FLAG_PREFIX: ClassVar[str] = ""
+
+    def validate(self) -> None:
+        unknown = [t for t in self.tasks if t not in SHAPE_TASKS]
+        if unknown:
+            raise ValueError(f"unknown task(s) {unknown}; choose from {', '.join(SHAPE_TASKS)}")
+        if len(self.lengths) != 2:
+            raise ValueError(f"--lengths {','.join(map(str, self.lengths))}: give two positive episode lengths, e.g. 40,900")
+        check_limits(self)
+
+
+def main(argv: list[str]) -> int:
+    args = parse_options(EpisodeBenchOptions, argv, prog="morphmimic bench episodes", description=__doc__.split("\n\n")[0])
+    tasks, lengths = args.tasks, args.lengths
     header = (f"{'task':<12} {'reset (new shape)':>17} {'control step':>12} {'reset/step':>10} "
               f"{f'share at {lengths[0]}':>12} {f'share at {lengths[1]}':>12}")
     print(header)
@@ -72,9 +89,3 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{task:<12} {r['reset_ms']:>14.1f} ms {r['step_ms']:>9.2f} ms {ratio:>10.1f} "
               f"{shares[0]:>11.0%} {shares[1]:>12.0%}")
     return 0
-
-
-if __name__ == "__main__":
-    import sys
-
-    raise SystemExit(main(sys.argv[1:]))

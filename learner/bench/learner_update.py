@@ -15,19 +15,23 @@ Torch runs single-threaded by default, as the learner does when the actors take 
 
 from __future__ import annotations
 
-import argparse
 import copy
 import dataclasses
 import statistics
 import time
+from dataclasses import dataclass
+from typing import Annotated, ClassVar
 
 import torch
+from tyro.constructors import PrimitiveConstructorSpec
 
+from common.config_limits import Limit, between, check_limits, validated
 from common.policy import GaussianPolicy, ValueNet
 from common.tasks.registry import make_env
+from learner.cli_options import CommaStrs, parse_options
 from learner.ppo import PPO, Batch
 from learner.ppo_reference import reference_update
-from learner.presets import PRESETS
+from learner.presets import PRESETS, check_presets
 
 
 def random_batch(policy: GaussianPolicy, steps: int, unroll: int, seed: int) -> Batch:
@@ -103,17 +107,24 @@ def measure(preset: str, rounds: int, seed: int = 0) -> dict[str, object]:
 
 
 def parse_schedules(text: str) -> list[tuple[int, int]]:
-    """"10x128,10x512" -> [(10, 128), (10, 512)]: epochs x minibatch per PPO update."""
+    """"10x128,10x512" -> [(10, 128), (10, 512)]: epochs x minibatch per PPO update, epochs 1-100
+    and minibatch 1-65536; ValueError naming the first item that is not one."""
     out = []
     for item in text.split(","):
         try:
             epochs, minibatch = (int(x) for x in item.strip().lower().split("x"))
         except ValueError:
-            raise argparse.ArgumentTypeError(f"{item!r}: give EPOCHSxMINIBATCH, e.g. 10x128") from None
+            raise ValueError(f"{item!r}: give EPOCHSxMINIBATCH, e.g. 10x128") from None
         if not (1 <= epochs <= 100 and 1 <= minibatch <= 65536):
-            raise argparse.ArgumentTypeError(f"{item!r}: epochs 1-100 and minibatch 1-65536")
+            raise ValueError(f"{item!r}: epochs 1-100 and minibatch 1-65536")
         out.append((epochs, minibatch))
     return out
+
+
+SCHEDULES = PrimitiveConstructorSpec(
+    nargs=1, metavar="EPOCHSxMINIBATCH,...", instance_from_str=lambda args: tuple(parse_schedules(args[0])),
+    is_instance=lambda v: isinstance(v, tuple), str_from_instance=lambda v: [",".join(f"{e}x{m}" for e, m in v or ())])
+"""`--schedules 10x128,10x512` as a tuple of (epochs, minibatch)."""
 
 
 def measure_schedules(preset: str, schedules: list[tuple[int, int]], rounds: int, seed: int = 0) -> list[dict]:
@@ -136,29 +147,43 @@ def measure_schedules(preset: str, schedules: list[tuple[int, int]], rounds: int
              "speedup_vs_first": first / statistics.median(times[(e, m)])} for e, m in schedules]
 
 
+PROG = "morphmimic bench learner"
+
+
+@validated
+@dataclass
+class LearnerBenchOptions:
+    presets: CommaStrs = ("lower_biped", "executor")
+    """Comma-separated training presets."""
+    rounds: int = 10
+    """Timed rounds, each one old and one new update."""
+    threads: int = 1
+    """Torch threads (the learner's, next to the actors)."""
+    schedules: Annotated[tuple[tuple[int, int], ...] | None, SCHEDULES] = None
+    """Instead: whole updates under these epochs x minibatch schedules, e.g. 10x128,10x512,5x256 (the
+    first is the reference of the ratios)."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {"rounds": between(1, 1000, integer=True), "threads": between(1, 256, integer=True)}
+    FLAG_PREFIX: ClassVar[str] = ""
+
+    def validate(self) -> None:
+        check_presets("--presets", self.presets)
+        check_limits(self)
+
+
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="morphmimic bench learner", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--presets", default="lower_biped,executor", help="comma-separated training presets")
-    parser.add_argument("--rounds", type=int, default=10, help="timed rounds, each one old and one new update")
-    parser.add_argument("--threads", type=int, default=1, help="torch threads (the learner's, next to the actors)")
-    parser.add_argument("--schedules", type=parse_schedules, default=None,
-                        help="instead: whole updates under these epochs x minibatch schedules, e.g. 10x128,10x512,5x256 "
-                             "(the first is the reference of the ratios)")
-    args = parser.parse_args(argv)
-    if not 1 <= args.rounds <= 1000 or not 1 <= args.threads <= 256:
-        parser.error(f"--rounds {args.rounds} / --threads {args.threads}: give 1-1000 rounds and 1-256 threads")
+    args = parse_options(LearnerBenchOptions, argv, prog=PROG, description=__doc__)
     torch.set_num_threads(args.threads)
     if args.schedules:
-        for preset in args.presets.split(","):
-            rows = measure_schedules(preset.strip(), args.schedules, args.rounds)
-            print(f"{preset.strip()}: one PPO update per schedule, {args.threads} thread(s), {args.rounds} rounds, KL stop off")
+        for preset in args.presets:
+            rows = measure_schedules(preset, list(args.schedules), args.rounds)
+            print(f"{preset}: one PPO update per schedule, {args.threads} thread(s), {args.rounds} rounds, KL stop off")
             for x in rows:
                 print(f"  {x['epochs']:3d} epochs x {x['minibatch']:5d}  {1e3 * x['update_s']:8.1f} ms per update  "
                       f"{x['us_per_sample']:7.1f} us per sample  {x['speedup_vs_first']:5.2f}x the first's speed")
         return 0
-    for preset in args.presets.split(","):
-        m = measure(preset.strip(), args.rounds)
+    for preset in args.presets:
+        m = measure(preset, args.rounds)
         print(f"{m['preset']}: obs {m['obs_dim']}, act {m['act_dim']}, hidden {m['hidden']}, "
               f"{m['epochs']} epochs x {m['minibatch']} of {m['steps']} per update, {args.threads} thread(s), {args.rounds} rounds")
         print(f"  old update (reference loop)   {m['old_ms']:7.2f} ms per minibatch step (fastest round {m['old_best_ms']:.2f})")

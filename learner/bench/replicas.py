@@ -16,22 +16,24 @@ separate nodes would.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import multiprocessing as mp
 import tempfile
 import time
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 import torch
 
+from common.config_limits import Limit, at_least, check_limits, validated
 from common.policy import GaussianPolicy, PolicyConfig, ValueNet
 from common.tasks.registry import make_env
 from learner import data_parallel
 from learner.bench.learner_update import random_batch
+from learner.cli_options import CommaInts, parse_options, refuse
 from learner.ppo import PPO, Batch
-from learner.evaluation.cli_args import positive_int, positive_ints
-from learner.presets import PRESETS
+from learner.presets import PRESETS, check_presets
 
 
 def build(preset: str, width: int) -> tuple[PPO, Batch]:
@@ -97,18 +99,33 @@ def measure(preset: str, width: int, updates: int, world: int) -> dict:
             "replicated_s": shared, "speedup": single / shared, "max_param_diff": float(np.abs(flat(ppo) - params).max())}
 
 
+PROG = "morphmimic bench replicas"
+
+
+@validated
+@dataclass
+class ReplicasBenchOptions:
+    preset: str = "executor"
+    """Preset whose task and PPO settings are used."""
+    widths: CommaInts = (256, 1024)
+    """Hidden widths of the 3-layer nets."""
+    replicas: int = 2
+    """Data-parallel processes (2 or more: one process is the other arm)."""
+    updates: int = 2
+    """Timed updates of each."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {"widths": at_least(1), "replicas": at_least(2), "updates": at_least(1)}
+    FLAG_PREFIX: ClassVar[str] = ""
+
+    def validate(self) -> None:
+        check_presets("--preset", [self.preset])
+        check_limits(self)
+
+
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="morphmimic bench replicas", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--preset", default="executor", choices=sorted(PRESETS), help="preset whose task and PPO settings are used")
-    parser.add_argument("--widths", type=positive_ints, default=[256, 1024], help="hidden widths of the 3-layer nets")
-    parser.add_argument("--replicas", type=positive_int, default=2, help="data-parallel processes")
-    parser.add_argument("--updates", type=positive_int, default=2, help="timed updates of each")
-    args = parser.parse_args(argv)
-    if args.replicas < 2:
-        parser.error(f"--replicas {args.replicas}: give 2 or more (one process is the other arm)")
+    args = parse_options(ReplicasBenchOptions, argv, prog=PROG, description=__doc__)
     if PRESETS[args.preset][1].ppo.minibatch % args.replicas:
-        parser.error(f"--replicas {args.replicas}: the preset's minibatch {PRESETS[args.preset][1].ppo.minibatch} does not divide among them")
+        refuse(PROG, f"--replicas {args.replicas}: the preset's minibatch {PRESETS[args.preset][1].ppo.minibatch} does not divide among them")
     torch.set_num_threads(1)
     print(f"{args.preset}: one process vs {args.replicas} replicas (gloo, 127.0.0.1), one torch thread each, "
           f"{args.updates} timed updates", flush=True)

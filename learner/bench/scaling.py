@@ -1,7 +1,7 @@
 """`morphmimic bench scaling`: fresh samples per second against rollout actors and learner replicas.
 
 The tool a cluster user runs to size a deployment. It starts the local test cluster of
-`deploy/local_cluster.py` with as many worker nodes as the largest actor count (one rollout actor
+`morphmimic local-cluster` with as many worker nodes as the largest actor count (one rollout actor
 per node, one CPU each: the "simulated nodes") and a head that may host the extra learner
 replicas, then runs the same training job on it for each actor count x replica count at a fixed
 step budget (`--iterations` PPO iterations of the preset's size), timed after `--warmup`
@@ -21,17 +21,19 @@ and `morphmimic_learner` resources; see deploy/README.md).
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import os
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
+from common.config_limits import Limit, at_least, check_limits, validated
 from learner.bench.throughput import end_to_end
+from learner.cli_options import CommaInts, parse_options, refuse
 from learner.config import LearnerConfig, RunConfig
-from learner.evaluation.cli_args import positive_int, positive_ints
-from learner.presets import PRESETS
+from learner.presets import PRESETS, check_presets
 
 
 def run_config(base: RunConfig, address: str, runs_dir: str, actors: int, replicas: int, envs_per_actor: int,
@@ -104,27 +106,47 @@ def _plot(path: Path, meta: dict, rows: list[dict]) -> None:
     plt.close(fig)
 
 
+PROG = "morphmimic bench scaling"
+
+
+@validated
+@dataclass
+class ScalingBenchOptions:
+    preset: str = "reach"
+    """Training preset to run."""
+    actors: CommaInts = (1, 2, 4, 8)
+    """Rollout actor counts."""
+    replicas: CommaInts = (1, 2)
+    """Learner replica counts."""
+    envs_per_actor: int = 8
+    """Environments per rollout actor."""
+    iterations: int = 8
+    """PPO iterations per run: the fixed step budget."""
+    warmup: int = 3
+    """Iterations excluded from the timing."""
+    learner_threads: int = 1
+    """Torch threads of each learner process."""
+    address: str = ""
+    """A running Ray cluster to measure instead of the local test cluster."""
+    out: str = ""
+    """Directory for scaling.json, scaling.md and scaling.png."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {"actors": at_least(1), "replicas": at_least(1), "envs_per_actor": at_least(1), "iterations": at_least(1), "warmup": at_least(0), "learner_threads": at_least(1)}
+    FLAG_PREFIX: ClassVar[str] = ""
+
+    def validate(self) -> None:
+        check_presets("--preset", [self.preset])
+        if self.iterations <= self.warmup + 1:
+            raise ValueError(f"--iterations {self.iterations} must exceed --warmup {self.warmup} by at least 2")
+        check_limits(self)
+
+
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="morphmimic bench scaling", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--preset", default="reach", choices=sorted(PRESETS), help="training preset to run")
-    parser.add_argument("--actors", type=positive_ints, default=[1, 2, 4, 8], help="rollout actor counts (default 1,2,4,8)")
-    parser.add_argument("--replicas", type=positive_ints, default=[1, 2], help="learner replica counts (default 1,2)")
-    parser.add_argument("--envs-per-actor", type=positive_int, default=8)
-    parser.add_argument("--iterations", type=positive_int, default=8, help="PPO iterations per run: the fixed step budget")
-    parser.add_argument("--warmup", type=int, default=3, help="iterations excluded from the timing")
-    parser.add_argument("--learner-threads", type=positive_int, default=1, help="torch threads of each learner process")
-    parser.add_argument("--address", default="", help="a running Ray cluster to measure instead of the local test cluster")
-    parser.add_argument("--out", default="", help="directory for scaling.json, scaling.md and scaling.png")
-    args = parser.parse_args(argv)
-    if args.warmup < 0:
-        parser.error(f"--warmup {args.warmup}: give 0 or more iterations")
-    if args.iterations <= args.warmup + 1:
-        parser.error(f"--iterations {args.iterations} must exceed --warmup {args.warmup} by at least 2")
+    args = parse_options(ScalingBenchOptions, argv, prog=PROG, description=__doc__)
     base = PRESETS[args.preset][1]
     for r in args.replicas:
         if base.ppo.minibatch % r:
-            parser.error(f"--replicas {r}: the preset's minibatch {base.ppo.minibatch} does not divide among them")
+            refuse(PROG, f"--replicas {r}: the preset's minibatch {base.ppo.minibatch} does not divide among them")
     cluster = None
     address = args.address
     if not address:

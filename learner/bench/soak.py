@@ -13,20 +13,23 @@ Not a test (it runs for minutes); loopback only.
 
 from __future__ import annotations
 
-import argparse
 import collections
 import dataclasses
 import os
 import signal
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 import zmq
 
 from common import curve
-from learner.presets import PRESETS
+from common.config_limits import SEED, Limit, above, between, check_limits, validated
+from learner.cli_options import parse_options
+from learner.presets import PRESETS, check_presets
 
 
 def _ledger(run_dir: Path) -> dict[int, int]:
@@ -37,14 +40,31 @@ def _ledger(run_dir: Path) -> dict[int, int]:
     return out
 
 
+PROG = "morphmimic bench soak"
+
+
+@validated
+@dataclass
+class SoakBenchOptions:
+    minutes: float = 10.0
+    """How long to train under faults."""
+    preset: str = "reach"
+    """Training preset."""
+    fault_rate: float = 0.25
+    """Probability of a fault per iteration."""
+    seed: int = 0
+    """Seed of the faults."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {"minutes": above(0), "fault_rate": between(0, 1), "seed": SEED}
+    FLAG_PREFIX: ClassVar[str] = ""
+
+    def validate(self) -> None:
+        check_presets("--preset", [self.preset])
+        check_limits(self)
+
+
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="morphmimic bench soak", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--minutes", type=float, default=10.0, help="how long to train under faults")
-    parser.add_argument("--preset", default="reach", help="training preset")
-    parser.add_argument("--fault-rate", type=float, default=0.25, help="probability of a fault per iteration")
-    parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args(argv)
+    args = parse_options(SoakBenchOptions, argv, prog=PROG, description=__doc__)
 
     import ray
 

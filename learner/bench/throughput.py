@@ -27,7 +27,6 @@ read the ratio.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import math
 import os
@@ -37,16 +36,20 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import torch
 
 from actors.draws import DrawCache
 from actors.rollout import RolloutWorker
 from common import wire
+from common.config_limits import Limit, at_least, check_limits, validated
 from common.tasks.registry import task_clips, task_space
+from learner.cli_options import parse_options
 from learner.config import RunConfig
-from learner.presets import PRESETS
+from learner.presets import PRESETS, check_presets
 
 
 @dataclass
@@ -169,20 +172,37 @@ def _pure_child(args_path: str, result_path: str) -> None:
         pickle.dump(out, f)
 
 
+PROG = "morphmimic bench throughput"
+
+
+@validated
+@dataclass
+class ThroughputBenchOptions:
+    preset: str = "reach"
+    """Training preset whose task and policy are measured."""
+    actors: int = 2
+    """Rollout actors (simulating cores)."""
+    envs_per_actor: int = 8
+    """Environments per rollout actor."""
+    rounds: int = 3
+    """End-to-end runs, each followed by its pure-simulation replay."""
+    iterations: int = 8
+    """Training iterations per end-to-end run."""
+    warmup: int = 3
+    """Iterations excluded from the timing."""
+    no_curve: bool = False
+    """Plain sockets instead of CURVE (what authentication costs: `morphmimic bench curve`)."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {"actors": at_least(1), "envs_per_actor": at_least(1), "rounds": at_least(1), "iterations": at_least(1), "warmup": at_least(0)}
+    FLAG_PREFIX: ClassVar[str] = ""
+
+    def validate(self) -> None:
+        check_presets("--preset", [self.preset])
+        check_limits(self)
+
+
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="morphmimic bench throughput", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--preset", default="reach", help="training preset whose task and policy are measured")
-    parser.add_argument("--actors", type=int, default=2, help="rollout actors (simulating cores)")
-    parser.add_argument("--envs-per-actor", type=int, default=8)
-    parser.add_argument("--rounds", type=int, default=3, help="end-to-end runs, each followed by its pure-simulation replay")
-    parser.add_argument("--iterations", type=int, default=8, help="training iterations per end-to-end run")
-    parser.add_argument("--warmup", type=int, default=3, help="iterations excluded from the timing")
-    parser.add_argument("--no-curve", action="store_true",
-                        help="plain sockets instead of CURVE (what authentication costs: `morphmimic bench curve`)")
-    args = parser.parse_args(argv)
-    if args.rounds < 1:
-        parser.error("--rounds must be at least 1")
+    args = parse_options(ThroughputBenchOptions, argv, prog=PROG, description=__doc__)
 
     base = PRESETS[args.preset][1]
     e2e_rounds: list[dict[str, float]] = []

@@ -1,6 +1,6 @@
 """Per-shape swimming speed: a fitted model of how fast each swimmer shape's stroke carries it.
 
-    python -m learner.tools.stroke_fit manta --shapes 200        # measure, fit, write the model
+    morphmimic stroke-fit manta --shapes 200        # measure, fit, write the model
 
 Won & Lee 2019 (METHOD.md A, "Reward normalization") scale a body's target velocity by its
 mean leg length, `v_target = v0 (lbar / lbar0) max(0.5, 1 - sigma_l / lbar)` (a reconstruction);
@@ -22,17 +22,20 @@ its measurements and its cross-validated error are written to
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar, Literal
 
 import numpy as np
+import tyro
 
+from common.config_limits import SEED, Limit, between, check_limits, validated
 from common.tasks.shape.stroke_model import MODEL_DIR, StrokeModel, StrokeModelError
+from learner.cli_options import parse_options, refuse
 
 RIDGE = (1e-3, 1e-2, 1e-1, 1.0, 10.0)
 """Ridge strengths tried; the one with the lowest cross-validated error is kept."""
@@ -144,46 +147,56 @@ def _refit_samples(path: Path) -> tuple[tuple[str, ...], np.ndarray, np.ndarray,
     return names, params, speeds, targets, doc
 
 
-def main(argv: list[str] | None = None) -> int:
-    from common.tasks.shape.stroke_speed import SWIMMERS
+PROG = "morphmimic stroke-fit"
 
-    p = argparse.ArgumentParser(prog="python -m learner.tools.stroke_fit", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("preset", choices=SWIMMERS, help="the swimmer whose shapes to measure")
-    p.add_argument("--shapes", type=int, default=200, help="random shapes to measure (20-5000)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the shape draws")
-    p.add_argument("--out", type=Path, default=None, help="model file (default: common/data/stroke_speed/<preset>.json)")
-    p.add_argument("--refit", action="store_true",
-                   help="fit again from the measurements stored in the model file, without measuring")
-    p.add_argument("--force", action="store_true",
-                   help="measure anew over an existing model file (runs and evaluations that use it change targets)")
-    args = p.parse_args(argv)
-    if args.seed < 0:
-        p.error(f"--seed {args.seed}: give an integer >= 0")
+
+@validated
+@dataclass
+class StrokeFitOptions:
+    preset: tyro.conf.Positional[Literal["fish", "manta"]]
+    """The swimmer whose shapes to measure."""
+    shapes: int = 200
+    """Random shapes to measure (the fit has up to 27 weights)."""
+    seed: int = 0
+    """Seed of the shape draws."""
+    out: Path | None = None
+    """Model file (default: common/data/stroke_speed/<preset>.json)."""
+    refit: bool = False
+    """Fit again from the measurements stored in the model file, without measuring."""
+    force: bool = False
+    """Measure anew over an existing model file (runs and evaluations that use it change targets)."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {"shapes": between(20, 5000, integer=True), "seed": SEED}
+    FLAG_PREFIX: ClassVar[str] = ""
+
+    def validate(self) -> None:
+        check_limits(self)
+
+
+def main(argv: list[str]) -> int:
+    args = parse_options(StrokeFitOptions, argv, prog=PROG, description=__doc__)
     out = args.out or MODEL_DIR / f"{args.preset}.json"
     if args.refit:
         try:
             names, params, speeds, targets, old = _refit_samples(out)
         except StrokeModelError as e:
-            p.error(str(e))
+            refuse(PROG, str(e))
         shapes, seed, base = len(speeds), old.get("seed", args.seed), old.get("base_ratio")
     else:
-        if not 20 <= args.shapes <= 5000:
-            p.error(f"--shapes {args.shapes}: give 20 to 5000 (the fit has up to 27 weights)")
         if out.exists() and not args.force:
-            p.error(f"{out} exists: a new measurement changes the targets of every run and evaluation that uses it; "
-                    "give --force to replace it, --refit to fit its stored measurements again, or --out")
+            refuse(PROG, f"{out} exists: a new measurement changes the targets of every run and evaluation that uses it; "
+                         "give --force to replace it, --refit to fit its stored measurements again, or --out")
         names, params, speeds, targets = measure(args.preset, args.shapes, args.seed)
         shapes, seed, base = args.shapes, args.seed, None
     ratios = speeds / targets
     if not (np.isfinite(ratios).all() and (ratios > 0).all()):
-        p.error(f"{args.preset}: a shape swam backwards or not at all (ratios {ratios.min():.3f}-{ratios.max():.3f}); no model written")
+        refuse(PROG, f"{args.preset}: a shape swam backwards or not at all (ratios {ratios.min():.3f}-{ratios.max():.3f}); no model written")
     summary = fit(params, ratios)
     base = base_ratio(args.preset) if base is None else float(base)
     out.parent.mkdir(parents=True, exist_ok=True)
     doc = {"preset": args.preset, "names": list(names), **summary, "seed": seed,
            "base_ratio": base, "base_ratio_predicted": math.exp(summary["bias"]),
-           "command": f"python -m learner.tools.stroke_fit {args.preset} --shapes {shapes} --seed {seed}",
+           "command": f"morphmimic stroke-fit {args.preset} --shapes {shapes} --seed {seed}",
            "samples": {"params": params.round(6).tolist(), "speed_m_s": speeds.round(6).tolist(),
                        "target_m_s": targets.round(6).tolist()}}
     out.write_text(json.dumps(doc, indent=1) + "\n")
@@ -195,7 +208,3 @@ def main(argv: list[str] | None = None) -> int:
           f"({summary['speed_error_pct_held_out']:.1f}%) held out; ridge {summary['ridge']:g}; "
           f"base body x{base:.2f} measured, x{math.exp(summary['bias']):.2f} predicted; wrote {out}")
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,5 +1,5 @@
 """Cluster mode on the local two-worker test cluster (a head and two worker nodes on this
-machine, as `deploy/local_cluster.py` starts them): the learner attaches, places one rollout
+machine, as `morphmimic local-cluster` starts them): the learner attaches, places one rollout
 actor per worker node by custom resource, and trains."""
 
 from __future__ import annotations

@@ -49,7 +49,7 @@ def test_every_numeric_field_of_the_run_config_has_a_limit() -> None:
     (["--ppo.lr", "abc"], "--ppo.lr: could not convert string to float: 'abc'; expected: --ppo.lr FLOAT"),
     (["--ppo.lrr", "1"], "Unrecognized options: --ppo.lrr"),
     (["--preset", "nope"], "--preset 'nope' is unknown"),
-    (["--preset", "fish", "--task.imitate.swimmer-speed", "stroke_fit"], "fish.json not found: make it with `python -m learner.tools.stroke_fit fish`"),
+    (["--preset", "fish", "--task.imitate.swimmer-speed", "stroke_fit"], "fish.json not found: make it with `morphmimic stroke-fit fish`"),
     (["--preset", "lower_biped-tiny", "--task.imitate.swimmer-speed", "stroke_fit"], "'lower_biped' is not a swimmer"),
     (["--preset", "lower_biped-tiny", "--task.imitate.observe-course"], "'lower_biped' is not a swimmer; only a swimmer has a course"),
     (["--preset", "manta", "--task.imitate.swimmer-speed", "fast"], "--task.imitate.swimmer-speed = 'fast': give length, stroke_fit"),

@@ -89,11 +89,11 @@ def test_a_tiny_pd_executor_distils_into_a_torque_checkpoint_the_learner_resumes
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["--rounds", "0"], "--rounds: '0' must be an integer >= 1"),
-    (["--lr", "nan"], "--lr: 'nan' must be a finite number > 0"),
-    (["--steps", "x"], "--steps: 'x' is not an integer"),
-    (["--seed", "-1"], "--seed: '-1' must be an integer >= 0"),
-    (["--seed", str(2**64)], "must be an integer >= 0 and below 2^32"),
+    (["--rounds", "0"], "--rounds = 0 is not allowed: give an integer >= 1"),
+    (["--lr", "nan"], "--lr = nan is not allowed: give a finite number > 0"),
+    (["--steps", "x"], "Error parsing --steps: invalid literal for int() with base 10: 'x'"),
+    (["--seed", "-1"], "--seed = -1 is not allowed: give an integer in [0, 4294967295]"),
+    (["--seed", str(2**64)], "is not allowed: give an integer in [0, 4294967295]"),
 ])
 def test_bad_options_are_named(tmp_path: Path, argv, message, capsys):
     from learner.distill import main

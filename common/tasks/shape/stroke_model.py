@@ -68,7 +68,7 @@ class StrokeModel:
             doc = json.loads(raw)
         except FileNotFoundError:
             raise StrokeModelError(f"stroke-speed model {path} not found: make it with "
-                                   f"`python -m learner.tools.stroke_fit {preset}`") from None
+                                   f"`morphmimic stroke-fit {preset}`") from None
         except (OSError, ValueError, RecursionError) as e:
             raise StrokeModelError(f"stroke-speed model {path}: not readable JSON ({type(e).__name__}: {e})") from None
         if not isinstance(doc, dict) or not all(k in doc for k in ("preset", "names", "bias", "weights", "clamp")):

@@ -1,6 +1,6 @@
 """How fast a swimmer's stroke carries its body: the speed its reference clip may ask for.
 
-    python -m common.tasks.shape.stroke_speed fish manta      # the base bodies, PD x1 (zero action) and stiffened
+    morphmimic stroke-speed fish manta      # the base bodies, PD x1 (zero action) and stiffened
 
 Won & Lee 2019 (METHOD.md A) drive the fish and the manta ray with hand-made sinusoidal
 keyframes whose root moves forward; in MuJoCo's fluid the root's speed is not free but what the
@@ -14,7 +14,6 @@ policy can reach), zero action, from `start_s` to `stop_s`.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 from dataclasses import dataclass
 
@@ -69,28 +68,3 @@ def stroke_speed(preset: str, gain_scale: float = CLOSE_TRACKING_GAIN, start_s: 
     ref = env.motion.qpos_frames[:, 0]  # the reference root as retargeted to this body
     return StrokeSpeed(preset, gain_scale, (float(env.data.qpos[0]) - x0) / (stop_s - start_s), float(np.mean(errors)),
                        float((ref[-1] - ref[0]) / env.motion.duration_s))
-
-
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m common.tasks.shape.stroke_speed", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("presets", nargs="*", help=f"swimmers to measure, of {', '.join(SWIMMERS)} (default: both)")
-    p.add_argument("--gains", type=float, nargs="+", default=[1.0, 3.0, 10.0, CLOSE_TRACKING_GAIN],
-                   help="PD stiffening factors to measure (>= 1)")
-    args = p.parse_args(argv)
-    for preset in args.presets:
-        if preset not in SWIMMERS:
-            p.error(f"{preset!r} is not a swimmer; choose one of {', '.join(SWIMMERS)}")
-    for gain in args.gains:
-        if not (np.isfinite(gain) and gain >= 1.0):
-            p.error(f"--gains {gain}: each factor must be a finite number >= 1")
-    print("| swimmer | PD gains | speed (m/s) | mean joint error (rad) | clip's speed (m/s) |\n|---|---|---|---|---|")
-    for preset in args.presets or SWIMMERS:
-        for gain in args.gains:
-            s = stroke_speed(preset, gain)
-            print(f"| {preset} | x{gain:g} | {s.speed_m_s:.3f} | {s.joint_error_rad:.3f} | {s.clip_speed_m_s:.3f} |")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

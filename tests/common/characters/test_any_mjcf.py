@@ -19,7 +19,7 @@ import pytest
 
 from common.characters import ShapeError, load_character, morph
 from common.characters.character import extent
-from common.characters.cli import main
+from learner.commands.character import main
 from tests.common.characters.conftest import REPO, divergence_count
 
 PUBLIC = Path(__file__).parent / "public_models"
@@ -199,7 +199,7 @@ def test_shape_that_scales_a_mesh_body_is_refused(tmp_path):
 def test_cli_subprocess_refuses_without_traceback():
     path = PUBLIC / "half_cheetah.xml"
     env = {**os.environ, "PYTHONPATH": str(REPO)}
-    run = subprocess.run([sys.executable, "-m", "common.characters.cli", str(path)], capture_output=True, text=True,
+    run = subprocess.run([sys.executable, "-m", "learner.cli", "character", str(path)], capture_output=True, text=True,
                          env=env, timeout=120, check=False)
     assert run.returncode == 2
     expected = (f"morphmimic character: MJCF file {str(path)!r} has no free-jointed root body: a character needs "

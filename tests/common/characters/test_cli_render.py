@@ -13,7 +13,7 @@ if "MUJOCO_GL" not in os.environ and not os.environ.get("DISPLAY"):
 
 
 def test_cli_prints_and_writes_mjcf(tmp_path, capsys):
-    from common.characters.cli import main
+    from learner.commands.character import main
 
     out = tmp_path / "lb.xml"
     assert main(["lower_biped", "--parameterization", "left_right_leg", "--shape", "left_leg=1.05", "--mjcf", str(out)]) == 0
@@ -26,14 +26,14 @@ def test_cli_prints_and_writes_mjcf(tmp_path, capsys):
 
 
 def test_cli_bad_shape_exits_2(capsys):
-    from common.characters.cli import main
+    from learner.commands.character import main
 
     assert main(["quadruped", "--shape", "front_leg=9", "--parameterization", "front_hind_leg"]) == 2
     assert "front_leg" in capsys.readouterr().err
 
 
 def test_cli_list(capsys):
-    from common.characters.cli import main
+    from learner.commands.character import main
 
     assert main(["manta", "--list"]) == 0
     assert "wing_span" in capsys.readouterr().out
@@ -44,7 +44,7 @@ def test_cli_list(capsys):
 def test_png_renders_the_character(tmp_path, preset):
     import imageio.v3 as iio
 
-    from common.characters.cli import main
+    from learner.commands.character import main
 
     png = tmp_path / "c.png"
     assert main([preset, "--png", str(png)]) == 0

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from common.motion import cli
+from learner.commands import motion as cli
 from common.motion.check import check_motion
 from common.motion.reference import CharacterMotion
 from common.motion.retarget import contact_phases

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from common.motion import cli
+from learner.commands import motion as cli
 from common.motion.bvh import parse_bvh
 from common.motion.cross_skeleton import (
     SOURCE_SKELETONS, FloorConfig, Segment, floor_contacts, local_floor, map_pose, naive_clip, rest_corrections,

@@ -82,7 +82,8 @@ def test_a_swimmers_clip_asks_for_the_speed_its_stroke_gives_when_tracked(preset
 
 
 def test_stroke_speed_refuses_what_it_cannot_measure():
-    from common.tasks.shape.stroke_speed import main, stroke_speed
+    from common.tasks.shape.stroke_speed import stroke_speed
+    from learner.tools.stroke_speed import main
 
     with pytest.raises(ValueError, match="'quadruped' is not a swimmer"):
         stroke_speed("quadruped")

@@ -27,7 +27,7 @@ def test_scaling_bench_runs_every_point_and_writes_its_files(tmp_path):
 def test_scaling_bench_refuses_counts_it_cannot_run(capsys):
     with pytest.raises(SystemExit) as exc:
         scaling.main(["--actors", "0,2"])
-    assert exc.value.code == 2 and "--actors: '0' must be an integer >= 1" in capsys.readouterr().err
+    assert exc.value.code == 2 and "--actors = (0, 2) is not allowed: give each an integer >= 1" in capsys.readouterr().err
     with pytest.raises(SystemExit) as exc:
         scaling.main(["--preset", "reach-tiny", "--replicas", "3"])
     assert exc.value.code == 2 and "does not divide" in capsys.readouterr().err

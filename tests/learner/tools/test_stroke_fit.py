@@ -47,7 +47,7 @@ def _model(tmp_path: Path, **changes) -> Path:
 
 def test_bad_model_files_are_refused_by_name(tmp_path: Path) -> None:
     names = ("a", "b")
-    with pytest.raises(StrokeModelError, match="not found.*stroke_fit manta"):
+    with pytest.raises(StrokeModelError, match="not found.*stroke-fit manta"):
         StrokeModel.load("manta", names, tmp_path / "missing.json")
     (tmp_path / "junk.json").write_text("{not json")
     with pytest.raises(StrokeModelError, match="not readable JSON"):
@@ -141,8 +141,8 @@ def test_the_fit_command_refuses_bad_input_by_name(tmp_path: Path, capsys) -> No
         assert exc.value.code == 2
         return capsys.readouterr().err
 
-    assert "--seed -1: give an integer >= 0" in fails("manta", "--seed", "-1", "--out", str(tmp_path / "m.json"))
-    assert "--shapes 5: give 20 to 5000" in fails("manta", "--shapes", "5", "--out", str(tmp_path / "m.json"))
+    assert "--seed = -1 is not allowed: give an integer in [0, 4294967295]" in fails("manta", "--seed", "-1", "--out", str(tmp_path / "m.json"))
+    assert "--shapes = 5 is not allowed: give an integer in [20, 5000]" in fails("manta", "--shapes", "5", "--out", str(tmp_path / "m.json"))
     assert "exists" in fails("manta", "--out", str(_model(tmp_path)))  # no measuring over a model without --force
     assert "holds no readable samples" in fails("manta", "--refit", "--out", str(_model(tmp_path)))
     rows = {"params": [[1.0, 1.0]] * 20, "speed_m_s": [0.3] * 20, "target_m_s": [0.3] * 20}

@@ -11,8 +11,39 @@ this command picks the one installed when MUJOCO_GL is unset and there is no DIS
 
 from __future__ import annotations
 
-import argparse
 import sys
+from dataclasses import dataclass
+from typing import ClassVar
+
+import tyro
+
+from common.config_limits import Limit, above, check_limits, validated
+from learner.cli_options import parse_options
+
+
+@validated
+@dataclass
+class CharacterOptions:
+    preset: tyro.conf.Positional[str]
+    """A character preset (see the list above), or an MJCF file (mjcf:path or *.xml)."""
+    shape: str | None = None
+    """Comma-separated name=value shape parameters (see --list)."""
+    parameterization: str = "random"
+    """Named parameterization of the preset (see --list)."""
+    timestep: float | None = None
+    """Physics step in seconds (default 1/480)."""
+    mjcf: str | None = None
+    """Write the shaped character as MJCF to this path."""
+    png: str | None = None
+    """Render the standing character to this PNG."""
+    list: bool = False
+    """List the parameterizations and their parameters, then exit."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {"timestep": above(0)}
+    FLAG_PREFIX: ClassVar[str] = ""
+
+    def validate(self) -> None:
+        check_limits(self)
 
 
 def _parse_shape(text: str | None) -> dict[str, str]:
@@ -27,22 +58,16 @@ def _parse_shape(text: str | None) -> dict[str, str]:
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str]) -> int:
     from common.offscreen_gl import choose_offscreen_gl
 
     choose_offscreen_gl()  # before mujoco is imported
     from common.characters import ShapeError, list_presets, load_character
     from common.characters.character import build_base
 
-    parser = argparse.ArgumentParser(prog="morphmimic character", description=__doc__.split("\n\n")[0])
-    parser.add_argument("preset", help=f"one of {', '.join(list_presets())}, or a path to an MJCF file (mjcf:path or *.xml)")
-    parser.add_argument("--shape", default=None, help="comma-separated name=value shape parameters (see --list)")
-    parser.add_argument("--parameterization", default="random", help="named parameterization of the preset (see --list)")
-    parser.add_argument("--timestep", type=float, default=None, help="physics step in seconds (default 1/480)")
-    parser.add_argument("--mjcf", default=None, help="write the shaped character as MJCF to this path")
-    parser.add_argument("--png", default=None, help="render the standing character to this PNG")
-    parser.add_argument("--list", action="store_true", help="list the parameterizations and their parameters, then exit")
-    args = parser.parse_args(argv)
+    description = f"{__doc__.split(chr(10) * 2)[0]}\n\npresets: {', '.join(list_presets())}"
+    args = parse_options(CharacterOptions, argv,
+                         prog="morphmimic character", description=description)
     try:
         if args.list:
             base = build_base(args.preset)
@@ -76,7 +101,3 @@ def main(argv: list[str] | None = None) -> int:
         print(f"morphmimic character: {exc}", file=sys.stderr)
         return 2
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))

@@ -9,18 +9,28 @@
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import sys
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated, ClassVar, Literal, get_args
 
 import numpy as np
+import tyro
+
+from common.config_limits import SEED, Limit, above, at_least, check_limits, validated
 
 from common.motion.errors import ClipError  # importing common.motion sets MUJOCO_GL=egl if unset
 from common.motion.root_height import ROOT_HEIGHT_RULES
+from learner.cli_options import parse_options
 
 
-def _parse_shape(items: list[str]) -> dict[str, float] | None:
+RootHeightRule = Literal["contact_set", "foot_tracks", "contact_smooth"]
+assert get_args(RootHeightRule) == ROOT_HEIGHT_RULES
+
+
+def _parse_shape(items: tuple[str, ...]) -> dict[str, float] | None:
+    """`name=value` items as a shape; ValueError naming the first item that is not one."""
     if not items:
         return None
     out = {}
@@ -29,10 +39,91 @@ def _parse_shape(items: list[str]) -> dict[str, float] | None:
         try:
             out[name] = float(value)
         except ValueError:
-            raise SystemExit(f"morphmimic motion: --shape expects name=value, got {item!r}") from None
+            raise ValueError(f"--shape expects name=value, got {item!r}") from None
         if not sep:
-            raise SystemExit(f"morphmimic motion: --shape expects name=value, got {item!r}")
+            raise ValueError(f"--shape expects name=value, got {item!r}")
     return out
+
+
+@validated
+@dataclass
+class ImportOptions:
+    sources: tyro.conf.Positional[tuple[str, ...]] = ()
+    """Motion files (.txt/.json DeepMimic, .bvh)."""
+    all: bool = False
+    """Every clip of common/data/clips.json."""
+    procedural: bool = False
+    """Also write the quadruped/fish/manta gaits."""
+    out: str | None = None
+    """Output directory (default common/data/clips/)."""
+    fps: float | None = None
+    """Resample to this rate in Hz (default: the file's)."""
+    skeleton: Literal["mass", "cmu"] | None = None
+    """BVH name map (default: guessed)."""
+    character: str | None = None
+    """Import a BVH onto this character: biped (default) or humanoid (cross-skeleton retargeting)."""
+    label: str = "root"
+    """Hierarchical class label for files given by path."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {"fps": above(0)}
+    FLAG_PREFIX: ClassVar[str] = ""
+
+    def validate(self) -> None:
+        check_limits(self)
+
+
+@validated
+@dataclass(kw_only=True)
+class _OnACharacter:
+    """Options of the commands that play a clip on a (shaped) character."""
+
+    character: str | None = None
+    """Preset (default: the clip's own character)."""
+    parameterization: str = "random"
+    """Shape parameterization of the preset."""
+    shape: Annotated[tuple[str, ...], tyro.conf.UseAppendAction] = ()
+    """name=value shape factor (repeatable)."""
+    random_shape: Annotated[int | None, tyro.conf.arg(metavar="SEED")] = None
+    """A random shape from this seed."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {"random_shape": SEED}
+    FLAG_PREFIX: ClassVar[str] = ""
+
+    def validate(self) -> None:
+        check_limits(self)
+        _parse_shape(self.shape)
+
+
+@validated
+@dataclass(kw_only=True)
+class ViewOptions(_OnACharacter):
+    clip: tyro.conf.Positional[str]
+    """Manifest id (e.g. humanoid3d_walk) or a motion file."""
+    out: str
+    """Output .png (strip) or .gif/.mp4."""
+    frames: int = 6
+    """Poses in a PNG strip."""
+    fps: float = 30.0
+    """Animation frame rate."""
+    seconds: float | None = None
+    """Time span shown (default the clip; longer loops)."""
+    retarget: bool = True
+    """Retarget the clip onto the character (--no-retarget: play it as recorded)."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {**_OnACharacter.LIMITS, "frames": at_least(1), "fps": above(0),
+                                          "seconds": above(0)}
+
+
+@validated
+@dataclass(kw_only=True)
+class CheckOptions(_OnACharacter):
+    clips: tyro.conf.Positional[tuple[str, ...]] = ()
+    """Manifest ids or motion files."""
+    all: bool = False
+    """Every clip of the manifest."""
+    root_height: RootHeightRule | None = None
+    """Root-height rule of the retargeting (default: the library's, contact_set; foot_tracks for
+    clips retargeted across skeletons)."""
 
 
 def _resolve(lib, spec: str, character: str | None = None):
@@ -166,50 +257,31 @@ def cmd_check(args) -> int:
     return 1 if failed else 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="morphmimic motion", description="import, view and check motion clips")
-    sub = p.add_subparsers(dest="cmd", required=True)
-    imp = sub.add_parser("import", help="convert DeepMimic JSON / BVH to canonical .npz clips")
-    imp.add_argument("sources", nargs="*", help="motion files (.txt/.json DeepMimic, .bvh)")
-    imp.add_argument("--all", action="store_true", help="every clip of common/data/clips.json")
-    imp.add_argument("--procedural", action="store_true", help="also write the quadruped/fish/manta gaits")
-    imp.add_argument("--out", help="output directory (default common/data/clips/)")
-    imp.add_argument("--fps", type=float, help="resample to this rate in Hz (default: the file's)")
-    imp.add_argument("--skeleton", choices=("mass", "cmu"), help="BVH name map (default: guessed)")
-    imp.add_argument("--character", help="import a BVH onto this character: biped (default) or humanoid "
-                                          "(cross-skeleton retargeting)")
-    imp.add_argument("--label", default="root", help="hierarchical class label for files given by path")
-    for name, help_ in (("view", "render a clip kinematically to a PNG strip (.png) or animation (.gif/.mp4)"),
-                        ("check", "per clip: feet vs floor, joint-range violations, rate, length")):
-        sp = sub.add_parser(name, help=help_)
-        if name == "view":
-            sp.add_argument("clip", help="manifest id (e.g. humanoid3d_walk) or a motion file")
-            sp.add_argument("--out", required=True, help="output .png (strip) or .gif/.mp4")
-            sp.add_argument("--frames", type=int, default=6, help="poses in a PNG strip")
-            sp.add_argument("--fps", type=float, default=30.0, help="animation frame rate")
-            sp.add_argument("--seconds", type=float, help="time span shown (default the clip; longer loops)")
-            sp.add_argument("--no-retarget", dest="retarget", action="store_false", help="play the clip as recorded")
-        else:
-            sp.add_argument("clips", nargs="*", help="manifest ids or motion files")
-            sp.add_argument("--all", action="store_true", help="every clip of the manifest")
-            sp.add_argument("--root-height", choices=ROOT_HEIGHT_RULES,
-                            help="root-height rule of the retargeting (default: the library's, contact_set; "
-                                 "foot_tracks for clips retargeted across skeletons)")
-        sp.add_argument("--character", help="preset (default: the clip's own character)")
-        sp.add_argument("--parameterization", default="random", help="shape parameterization of the preset")
-        sp.add_argument("--shape", action="append", default=[], help="name=value shape factor (repeatable)")
-        sp.add_argument("--random-shape", type=int, metavar="SEED", help="a random shape from this seed")
-    return p
+SUBCOMMANDS = {
+    "import": (ImportOptions, cmd_import, "convert DeepMimic JSON / BVH to canonical .npz clips"),
+    "view": (ViewOptions, cmd_view, "render a clip kinematically to a PNG strip (.png) or animation (.gif/.mp4)"),
+    "check": (CheckOptions, cmd_check, "per clip: feet vs floor, joint-range violations, rate, length"),
+}
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
-    try:
-        return {"import": cmd_import, "view": cmd_view, "check": cmd_check}[args.cmd](args)
-    except ClipError as exc:
-        print(f"morphmimic motion {args.cmd}: {exc}", file=sys.stderr)
-        return 1
+def _runner(name: str):
+    """`main(argv)` of one subcommand: its options parsed, then run; a ClipError is one line, exit 1."""
+    options, run, text = SUBCOMMANDS[name]
+    prog = f"morphmimic motion {name}"
+
+    def main(argv: list[str]) -> int:
+        args = parse_options(options, argv, prog=prog, description=text)
+        try:
+            return run(args)
+        except ClipError as exc:
+            print(f"{prog}: {exc}", file=sys.stderr)
+            return 1
+
+    return main
 
 
-if __name__ == "__main__":
-    raise SystemExit(main())
+def main(argv: list[str]) -> int:
+    from learner.cli import dispatch
+
+    table = {name: (_runner(name), text) for name, (_, _, text) in SUBCOMMANDS.items()}
+    return dispatch("morphmimic motion", "subcommand", table, argv)

@@ -13,12 +13,14 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 import torch
-import tyro
 
+from common.config_limits import Limit, at_least, check_limits, validated
 from common.params import ParamSpace
+from learner.cli_options import parse_options
 from sampler.actor import start_in_thread
 from sampler.client import SamplerClient
 from sampler.config import SamplerConfig
@@ -26,6 +28,7 @@ from sampler.marginal_value import one_torch_thread
 from sampler.shape_sampler import ShapeSampler
 
 
+@validated
 @dataclass(frozen=True)
 class SamplerBenchConfig:
     dims: tuple[int, ...] = (2, 6, 18)
@@ -43,6 +46,15 @@ class SamplerBenchConfig:
     """Draw requests timed through the socket per batch size."""
     sampler: SamplerConfig = SamplerConfig()
     """The sampler configuration under test (k, n_mcmc, chains, Vm size, ...)."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {
+        "dims": at_least(1), "repeats": at_least(1), "iteration_s": at_least(0, integer=False),
+        "obs_dim": at_least(1), "act_dim": at_least(1), "requests": at_least(1),
+    }
+    FLAG_PREFIX: ClassVar[str] = ""
+
+    def validate(self) -> None:
+        check_limits(self)
 
 
 def _space(d: int) -> ParamSpace:
@@ -110,8 +122,7 @@ def time_draws(cfg: SamplerConfig, requests: int, n: int) -> tuple[float, float]
 
 
 def main(argv: list[str]) -> int:
-    cfg = tyro.cli(SamplerBenchConfig, args=argv, prog="morphmimic bench sampler",
-                   description=__doc__.split("\n\n")[0])
+    cfg = parse_options(SamplerBenchConfig, argv, prog="morphmimic bench sampler", description=__doc__.split("\n\n")[0])
     s = cfg.sampler
     if cfg.iteration_s > 0:
         iteration_s, source = cfg.iteration_s, "given"

@@ -9,10 +9,36 @@ lift), and simulation cost per 30 Hz control step under zero and uniform random 
 
 from __future__ import annotations
 
-import argparse
 import time
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
+
+from common.config_limits import SEED, Limit, above, at_least, check_limits, validated
+from learner.cli_options import CommaStrs, parse_options
+
+
+@validated
+@dataclass
+class CharacterBenchOptions:
+    presets: CommaStrs = ()
+    """Comma-separated presets or mjcf:<path> (default: every preset)."""
+    shapes: int = 10
+    """Random shapes per preset."""
+    control_steps: int = 150
+    """30 Hz control steps timed per action mode."""
+    timestep: float | None = None
+    """Physics step [s] (default: the preset's)."""
+    seed: int = 0
+    """Seed of the random shapes and actions."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {"shapes": at_least(1), "control_steps": at_least(1),
+                                          "timestep": above(0), "seed": SEED}
+    FLAG_PREFIX: ClassVar[str] = ""
+
+    def validate(self) -> None:
+        check_limits(self)
 
 
 def _ms(fn, n: int) -> float:
@@ -65,29 +91,18 @@ def bench_preset(preset: str, n_shapes: int, n_control: int, timestep_s: float |
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str]) -> int:
     from common.characters import list_presets
 
-    parser = argparse.ArgumentParser(prog="morphmimic bench characters", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--presets", default=",".join(list_presets()), help="comma-separated presets or mjcf:<path>")
-    parser.add_argument("--shapes", type=int, default=10, help="random shapes per preset")
-    parser.add_argument("--control-steps", type=int, default=150, help="30 Hz control steps timed per action mode")
-    parser.add_argument("--timestep", type=float, default=None, help="physics step [s] (default: the preset's)")
-    parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args(argv)
+    args = parse_options(CharacterBenchOptions, argv, prog="morphmimic bench characters",
+                         description=__doc__.split("\n\n")[0])
     header = (f"{'preset':<12} {'build+compile':>13} {'factory':>8} {'ratio':>5} {'pose solve':>10} {'morph':>8} {'dt':>7} {'substeps':>8} "
               f"{'ctrl step zero':>14} {'ctrl step rand':>14} {'ctrl steps/s':>12}")
     print(header)
     print("-" * len(header))
-    for preset in args.presets.split(","):
+    for preset in args.presets or list_presets():
         r = bench_preset(preset, args.shapes, args.control_steps, args.timestep, args.seed)
         print(f"{preset:<12} {r['build_ms']:>10.1f} ms {r['factory_ms']:>5.1f} ms {r['build_ms'] / r['factory_ms']:>5.1f} {r['pose_ms']:>7.1f} ms {r['morph_ms']:>5.1f} ms "
               f"{r['dt_ms']:>4.2f}ms {r['substeps']:>8d} {r['zero_ms']:>11.2f} ms {r['random_ms']:>11.2f} ms "
               f"{1e3 / r['random_ms']:>12.0f}")
     return 0
-
-
-if __name__ == "__main__":
-    import sys
-
-    raise SystemExit(main(sys.argv[1:]))
