@@ -190,8 +190,8 @@ class ThroughputBenchOptions:
     """Training iterations per end-to-end run."""
     warmup: int = 3
     """Iterations excluded from the timing."""
-    no_curve: bool = False
-    """Plain sockets instead of CURVE (what authentication costs: `morphmimic bench curve`)."""
+    curve: bool = True
+    """CURVE on the sockets, as in training (`--no-curve`: plain sockets, to see what authentication costs: `morphmimic bench curve`)."""
 
     LIMITS: ClassVar[dict[str, Limit]] = {"actors": at_least(1), "envs_per_actor": at_least(1), "rounds": at_least(1), "iterations": at_least(1), "warmup": at_least(0)}
     FLAG_PREFIX: ClassVar[str] = ""
@@ -210,7 +210,7 @@ def main(argv: list[str]) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         for r in range(args.rounds):
             cfg = dataclasses.replace(
-                base, name=f"bench-{r}", runs_dir=tmp, mode="local", quiet=True, resume="never", curve=not args.no_curve,
+                base, name=f"bench-{r}", runs_dir=tmp, mode="local", quiet=True, resume="never", curve=args.curve,
                 max_iterations=args.iterations, total_env_steps=10**9, checkpoint_every=10**6,
                 actors=dataclasses.replace(base.actors, num_actors=args.actors, envs_per_actor=args.envs_per_actor),
             )
