@@ -11,6 +11,7 @@ from typing import ClassVar, Literal, get_args, get_origin, get_type_hints
 
 from actors.config import ActorConfig
 from common.config_limits import SEED, Limit, above, at_least, between, check_limits, validated
+from common.motion.retarget_config import RetargetConfig
 from common.policy import PolicyConfig
 from common.tasks.base import TaskConfig
 from common.tasks.body_config import BodyConfig
@@ -172,8 +173,12 @@ class RunConfig:
 
 
 _NESTED = {"learner": LearnerConfig, "task": TaskConfig, "policy": PolicyConfig, "ppo": PPOConfig, "actors": ActorConfig, "sampler": SamplerConfig,
-           "executor": ExecutorConfig, "body": BodyConfig, "imitate": ImitateConfig}
+           "executor": ExecutorConfig, "body": BodyConfig, "imitate": ImitateConfig, "retarget": RetargetConfig}
 """Fields that hold a config dataclass (by field name), rebuilt from their JSON objects."""
+
+_FLAT_RETARGET = {"retarget_root_height": "root_height", "retarget_body_clearance_m": "body_clearance_m"}
+"""Retargeting settings an `imitate` section held as its own fields before it nested a
+`RetargetConfig` (old name -> `retarget` field)."""
 
 
 def _task_sections(raw: dict) -> dict:
@@ -181,10 +186,26 @@ def _task_sections(raw: dict) -> dict:
     session 21): its body and shape-task keys move into `body` and `imitate`, so the shipped
     checkpoints and old runs load with the settings they were trained with."""
     raw = dict(raw)
-    for section, cls in (("body", BodyConfig), ("imitate", ImitateConfig)):
-        moved = {f.name: raw.pop(f.name) for f in dataclasses.fields(cls) if f.name in raw}
+    for section, names in (("body", _field_names(BodyConfig)), ("imitate", _field_names(ImitateConfig) | set(_FLAT_RETARGET))):
+        moved = {name: raw.pop(name) for name in names if name in raw}
         if moved:
             raw[section] = {**moved, **raw.get(section, {})}
+    return raw
+
+
+def _field_names(cls: type) -> set[str]:
+    return {f.name for f in dataclasses.fields(cls)}
+
+
+def _nest_retarget(raw: dict) -> dict:
+    """An `imitate` section written with the flat retargeting fields (`_FLAT_RETARGET`): their
+    values move into its `retarget` section, so older checkpoints load with the rule and
+    clearance they were trained with."""
+    raw = dict(raw)
+    moved = {new: raw.pop(old) for old, new in _FLAT_RETARGET.items() if old in raw}
+    if moved:
+        nested = raw.get("retarget")
+        raw["retarget"] = {**moved, **(nested if isinstance(nested, dict) else {})}
     return raw
 
 
@@ -194,6 +215,8 @@ def _from_dict(cls: type, raw: dict):
     names = {f.name for f in dataclasses.fields(cls)}
     if cls is TaskConfig:
         raw = _task_sections(raw)
+    if cls is ImitateConfig:
+        raw = _nest_retarget(raw)
     kwargs = {}
     for k, v in raw.items():
         if k not in names:

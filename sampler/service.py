@@ -116,9 +116,9 @@ class SamplerService:
         sock, self.endpoint = _bind(address or bind_address(config), keys)
         self.server = RouterServer(sock, self._handle, "sampler", dims={"n_params": space.dim},
                                    roles={kind: frozenset({LEARNER}) for kind in LEARNER_ONLY})
-        if self.sampler.balancer is not None:
-            log.info("sampler: motion balancer over %d clips:\n%s", len(self.sampler.balancer.clip_ids),
-                     self.sampler.balancer.table())
+        if self.sampler.clips is not None:
+            log.info("sampler: motion balancer over %d clips:\n%s", len(self.sampler.clips.clip_ids),
+                     self.sampler.clips.table())
         log.info("sampler: serving %s on %s", list(space.names), self.endpoint)
 
     def _handle(self, msg: Any) -> Any:

@@ -10,8 +10,10 @@ Algorithm 1 mapped onto the calls:
     lines 15-16  report(params, values): pairs (s_b, V(s)) stored until the next tick (buffer D)
     lines 24-26  tick(i) fits Vm and Vbar on the stored pairs, then clears them (line 27)
 
-Clips: `report` (or `report_clips`) adds the training segments' outcomes per clip and each tick reweights the
-motion balancer by them (adaptive clip sampling, `sampler/clip_outcomes.py`; off for clip_k = 0).
+Clips: a `ClipManager` (`common/motion/clip_manager.py`) draws them by the motion balancer;
+`report` (or `report_clips`) adds the training segments' outcomes per clip and each tick
+reweights the manager by them (adaptive clip sampling, `sampler/clip_outcomes.py`; off for
+clip_k = 0).
 
 A tick is idempotent for a repeated iteration number (a client's retry after a lost reply): the
 pairs are already consumed and the refill is keyed on the iteration, not on the tick count.
@@ -29,6 +31,7 @@ import torch
 from common import device as devices
 from common.params import ParamError, ParamSpace
 from common.motion.balancer import MotionBalancer
+from common.motion.clip_manager import ClipManager
 from sampler.clip_outcomes import ClipOutcomes
 from sampler.config import SamplerConfig
 from sampler.marginal_value import MarginalValue
@@ -47,9 +50,10 @@ class ShapeSampler:
         self.rng = np.random.default_rng(config.seed)
         self.vm = MarginalValue(space.low_array, space.high_array, config.vm_hidden, config.vm_lr,
                                 config.vbar_rate, config.seed, config.probe_points, devices.resolve(config.device))
-        self.balancer = MotionBalancer(clips) if clips else None
-        self.clip_outcomes = (ClipOutcomes(self.balancer.clip_ids, config.clip_k, config.clip_memory)
-                              if self.balancer else None)
+        self.clips = ClipManager(clips) if clips else None
+        """The episodes' clip draws (None: the task uses no clips)."""
+        self.clip_outcomes = (ClipOutcomes(self.clips.clip_ids, config.clip_k, config.clip_memory)
+                              if self.clips else None)
         self._pending_params: list[np.ndarray] = []
         self._pending_values: list[np.ndarray] = []
         self.generation = 0
@@ -62,6 +66,12 @@ class ShapeSampler:
         self.buffer = space.uniform(self.rng, config.n_mcmc)
         self._order = self.rng.permutation(config.n_mcmc)
         self._cursor = 0
+
+    @property
+    def balancer(self) -> MotionBalancer | None:
+        """The clip manager's motion balancer: its class-tree `probabilities` and the reweighted
+        `draw_probabilities` the draws use."""
+        return self.clips.balancer if self.clips is not None else None
 
     def draw(self, n: int) -> tuple[np.ndarray, list[str]]:
         """`n` episode draws: parameters `[n, d]` float64 from the buffer, and `n` clip ids
@@ -78,7 +88,7 @@ class ShapeSampler:
             rows[filled:filled + take] = self._order[self._cursor:self._cursor + take]
             self._cursor += take
             filled += take
-        clips = self.balancer.draw(self.rng, n) if self.balancer else []
+        clips = self.clips.draw_clips(self.rng, n) if self.clips else []
         self.draws_served += n
         return self.buffer[rows].copy(), clips
 
@@ -153,7 +163,7 @@ class ShapeSampler:
         if self.clip_outcomes is not None:
             self.clip_outcomes.update()
             if self.clip_outcomes.k > 0:
-                self.balancer.set_factors(self.clip_outcomes.factors())
+                self.clips.reweight(self.clip_outcomes.factors())
         if iteration < self.last_refill_iteration:  # the learner went back (resumed without our state)
             self.last_refill_iteration = iteration
         if iteration - self.last_refill_iteration >= self.config.p_mcmc:
@@ -211,8 +221,8 @@ class ShapeSampler:
             "mcmc/acceptance": self.acceptance, "mcmc/refill_s": self.refill_s,
             "draws/served": float(self.draws_served),
         })
-        if self.balancer is not None:
-            p = self.balancer.draw_probabilities
+        if self.clips is not None:
+            p = self.clips.draw_probabilities
             out.update({"clips/count": float(len(p)), "clips/p_min": float(p.min()), "clips/p_max": float(p.max())})
             out.update(self.clip_outcomes.stats())
         return out
@@ -269,7 +279,7 @@ class ShapeSampler:
         if self.clip_outcomes is not None:  # a state from before adaptive clip sampling has none: every clip unseen
             self.clip_outcomes.load_state(meta.get("clips"), arrays)
             if self.clip_outcomes.k > 0:
-                self.balancer.set_factors(self.clip_outcomes.factors())
+                self.clips.reweight(self.clip_outcomes.factors())
         if box_changed:
             self.refill()
             self.last_refill_iteration = self.last_tick

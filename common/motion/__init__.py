@@ -12,7 +12,9 @@ body shape, procedural gaits, the dataset manifest and its UniCon split.
 Modules: clip (format), quat, kinematics, import_deepmimic, bvh + import_bvh, cross_skeleton (a
 BVH of another skeleton onto the DeepMimic humanoid: rest-pose correction, feet planted on a
 drifting floor), qpos_map (clip -> a model's qpos), reference (CharacterMotion), retarget (on
-root_height: where the feet are, the root-height rules; leg_solve: the leg pose solve), procedural, manifest, check, view, cli.
+root_height: where the feet are, the root-height rules; leg_solve: the leg pose solve), procedural, manifest, check, view, cli,
+balancer (UniCon's class-tree clip probabilities) and clip_manager (which clip and start time each
+environment plays: every clip draw goes through a `ClipManager`).
 """
 
 from common.offscreen_gl import choose_offscreen_gl

@@ -84,6 +84,17 @@ class MotionBalancer:
     def from_clips_json(cls, path: str | Path | None = None) -> "MotionBalancer":
         return cls(load_clip_labels(path))
 
+    @classmethod
+    def with_probabilities(cls, clip_ids: Sequence[str], probabilities: np.ndarray) -> "MotionBalancer":
+        """A balancer over `clip_ids` with these probabilities, used as given (no class tree;
+        `exact_probabilities` is empty; a repeated id is drawn through each of its entries)."""
+        self = cls.__new__(cls)
+        self.clip_ids = tuple(clip_ids)
+        self.exact_probabilities = {}
+        self.probabilities = np.asarray(probabilities, dtype=np.float64).reshape(-1).copy()
+        self.draw_probabilities = self.probabilities.copy()
+        return self
+
     def _walk(self, node: _Node, p: Fraction, out: dict[str, Fraction]) -> None:
         branches: list[tuple[str, _Node | None]] = [(name, child) for name, child in node.children.items()]
         if node.clips:

@@ -1,16 +1,18 @@
 """`RetargetConfig`: the thresholds of retargeting a clip onto a body (`retarget.py`), on their
-own so that the retargeting and the leg solve it drives can both read them."""
+own so that the retargeting and the leg solve it drives can both read them. The shape tasks
+nest one (`ImitateConfig.retarget`, flags `--task.imitate.retarget.<field>`)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
-import numpy as np
-
+from common.config_limits import Limit, above, at_least, between, check_limits, flag, validated
 from common.motion.root_height import ROOT_HEIGHT_RULES
 
 
 @dataclass(frozen=True)
+@validated
 class RetargetConfig:
     """Thresholds of the retargeting (metres, m/s)."""
 
@@ -44,10 +46,17 @@ class RetargetConfig:
     changes: no root drop when a shorter leg's pair takes over), and the leg solve then shortens
     each longer leg by its track's depth below the floor on every frame (`foot_goals`)."""
 
-    def __post_init__(self) -> None:
-        for name, low, strict in (("root_speed_m_s", 0.0, True), ("ramp_s", 0.0, False), ("body_clearance_m", 0.0, False)):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and (value > low if strict else value >= low)):
-                raise ValueError(f"{name} = {value!r} must be a finite number {'>' if strict else '>='} {low:g}")
+    FLAG_PREFIX: ClassVar[str] = "task.imitate.retarget"
+    LIMITS: ClassVar[dict[str, Limit]] = {
+        "contact_height_m": above(0), "contact_speed_m_s": above(0), "ik_tolerance_m": above(0),
+        "ik_iterations": at_least(1), "ik_orientation_weight_m": at_least(0, False), "ik_damping": at_least(0, False),
+        "root_speed_m_s": above(0), "ramp_s": at_least(0, False), "body_clearance_m": between(0, 0.1),
+    }
+    """Allowed values of the numeric fields (`common.config_limits`)."""
+
+    def validate(self) -> None:
+        """ValueError naming the first value outside what is allowed."""
+        check_limits(self)
         if self.root_height not in ROOT_HEIGHT_RULES:
-            raise ValueError(f"root_height {self.root_height!r} is not one of {' | '.join(ROOT_HEIGHT_RULES)}")
+            raise ValueError(f"{flag(self.FLAG_PREFIX, 'root_height')} = {self.root_height!r}: "
+                             f"give {', '.join(ROOT_HEIGHT_RULES)}")

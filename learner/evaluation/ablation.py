@@ -62,8 +62,8 @@ def _still_valid(res_file: Path, loaded: eval_core.Loaded, args: argparse.Namesp
         return bool(meta["checkpoint"] == str(loaded.path) and meta["seed"] == args.seed
                     and meta["episode_s"] == args.episode_s and old["summary"]["shapes"] == args.shapes
                     and meta.get("fall_rule", "task") == args.fall_rule
-                    and meta.get("root_height", imitate.retarget_root_height) == imitate.retarget_root_height
-                    and meta.get("clearance_m", imitate.retarget_body_clearance_m) == imitate.retarget_body_clearance_m
+                    and meta.get("root_height", imitate.retarget.root_height) == imitate.retarget.root_height
+                    and meta.get("clearance_m", imitate.retarget.body_clearance_m) == imitate.retarget.body_clearance_m
                     and meta.get("body_digest") == eval_core.body_digest(character_preset(loaded.cfg.task)))
     except (ValueError, KeyError, TypeError, AttributeError):  # not JSON, or not an evaluation's results
         return False

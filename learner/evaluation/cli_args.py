@@ -65,7 +65,7 @@ def positive_float(text: str) -> float:
 
 
 def clearance(text: str) -> float:
-    """A body clearance in metres, in [0, 0.1] (`--task.imitate.retarget-body-clearance-m`'s range)."""
+    """A body clearance in metres, in [0, 0.1] (`--task.imitate.retarget.body-clearance-m`'s range)."""
     return _within(text, float, lambda v: 0.0 <= v <= 0.1, "a number of metres in [0, 0.1]")
 
 

@@ -24,6 +24,7 @@ import os
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -223,10 +224,13 @@ def main(argv: list[str]) -> int:
             print(f"[evaluate] {done}/{total} shapes, {time.monotonic() - t0:.0f} s", flush=True)
 
     overrides = {"shin_contact_is_fall": True} if args.fall_rule == "paper" else {}
+    retarget = loaded.cfg.task.imitate.retarget
     if args.root_height is not None:
-        overrides["retarget_root_height"] = args.root_height
+        retarget = dataclasses.replace(retarget, root_height=args.root_height)
     if args.clearance is not None:
-        overrides["retarget_body_clearance_m"] = args.clearance
+        retarget = dataclasses.replace(retarget, body_clearance_m=args.clearance)
+    if retarget != loaded.cfg.task.imitate.retarget:
+        overrides["retarget"] = retarget
     results = eval_core.evaluate(loaded, shapes, args.episode_s, args.seed, args.workers, progress,
                                  imitate_overrides=overrides, box_scale=args.box_scale)
     summary = eval_core.summarize(results, space, n_shape)
@@ -235,8 +239,7 @@ def main(argv: list[str]) -> int:
             "env_steps": int(loaded.state.get("env_steps", 0)), "seed": args.seed, "episode_s": args.episode_s,
             "box_scale": args.box_scale, "param_names": list(space.names), "map_params": names,
             "fall_rule": args.fall_rule, "body_digest": eval_core.body_digest(env.character.preset),
-            "root_height": args.root_height or loaded.cfg.task.imitate.retarget_root_height,
-            "clearance_m": loaded.cfg.task.imitate.retarget_body_clearance_m if args.clearance is None else args.clearance}
+            "root_height": retarget.root_height, "clearance_m": retarget.body_clearance_m}
     if env.character.is_swimmer:
         meta["swimmer_speed"] = swim_metrics.target_rule(env)
         summary["swim_target_rule"] = meta["swimmer_speed"]

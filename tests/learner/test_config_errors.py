@@ -4,6 +4,7 @@ allowed, exit code 2, and no run folder (issue 22, item 1)."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import re
 import subprocess
 import sys
@@ -131,3 +132,18 @@ def test_a_saved_config_with_a_choice_it_does_not_offer_is_refused_by_name(secti
     flag = ("--" if section is None else f"--task.{section}.") + field.replace("_", "-")
     with pytest.raises(ValueError, match=rf"{re.escape(flag)} = .* is not one of"):
         RunConfig.from_json(json.dumps(raw))
+
+
+def test_a_saved_config_with_the_flat_retargeting_fields_loads_them_nested() -> None:
+    """An `imitate` section (or, older, a flat task section) written before `ImitateConfig`
+    nested a `RetargetConfig` keeps its root-height rule and clearance."""
+    raw = json.loads(RunConfig().to_json())
+    del raw["task"]["imitate"]["retarget"]
+    raw["task"]["imitate"].update(retarget_root_height="contact_smooth", retarget_body_clearance_m=0.01)
+    r = RunConfig.from_json(json.dumps(raw)).task.imitate.retarget
+    assert (r.root_height, r.body_clearance_m) == ("contact_smooth", 0.01)
+    flat = json.loads(RunConfig().to_json())
+    del flat["task"]["imitate"]
+    flat["task"].update(retarget_root_height="foot_tracks", shin_contact_is_fall=False)
+    cfg = RunConfig.from_json(json.dumps(flat))
+    assert cfg.task.imitate.retarget.root_height == "foot_tracks" and not cfg.task.imitate.shin_contact_is_fall

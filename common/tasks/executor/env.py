@@ -1,9 +1,11 @@
 """`ExecutorEnv`: UniCon's low-level motion executor (Wang et al. 2020; METHOD.md B) on the
 DeepMimic humanoid, over a whole clip library.
 
-- Targets come from a `Scheduler` (`schedulers.py`); training uses the `DatasetScheduler`: the
-  clip the sampler's motion balancer drew for the episode, from a random frame, rescheduled to
-  another balanced draw at the clip's end (`ExecutorConfig.at_clip_end`).
+- Targets come from a `Scheduler` (`schedulers/`); training uses the `DatasetScheduler`: the
+  clip the sampler drew for the episode, from a random frame, rescheduled at the clip's end
+  (`ExecutorConfig.at_clip_end`) to a clip and frame drawn by the environment's `ClipManager`
+  (`clip_manager`: the task's clips under the motion balancer, without the sampler's adaptive
+  weights, which stay in the sampler service).
 - Observation: s_t = [shape params, o(X_now), o(X~_t+1), y(X~_t+1), ... up to tau]
   (`executor_obs.py`): agent-centric, unchanged by where the character stands or faces.
 - Action (`ExecutorConfig.actuation`): torques, a in [-1, 1] per DOF times its effort factor
@@ -38,6 +40,7 @@ import numpy as np
 from common.characters import base_character, load_character
 from common.characters.mass import scale_body_mass
 from common.characters.morph import lift_out_of_floor
+from common.motion.clip_manager import ClipManager
 from common.motion.library import MotionLibrary
 from common.motion.manifest import Manifest, load_manifest, unicon_split
 from common.motion.mirror import MIRROR_SUFFIX, mirrored_id, source_id
@@ -48,7 +51,6 @@ from common.tasks.base import TaskConfig, step_physics
 from common.tasks.executor.observations import BodyKin, observation, read_kinematics
 from common.tasks.observations import JointLayout
 from common.tasks.executor.schedulers.base import DatasetScheduler, Scheduler, TargetFrame
-from common.motion.balancer import MotionBalancer
 
 CHARACTER = "humanoid"
 EFFORT_70KG_NM = {
@@ -253,11 +255,15 @@ class ExecutorEnv:
         self.clip_list = executor_clips(cfg)
         if not self.clip_list:
             raise ValueError(f"no clips to track for split {self.ex.split!r} (seed {self.ex.split_seed})")
-        balancer = MotionBalancer(self.clip_list)
         self.library = MotionLibrary()
         self._motions: dict[str, CharacterMotion] = {}
+        self.clip_manager = ClipManager(self.clip_list, duration_s=lambda c: self._motion(c).duration_s)
+        """Draws the clip and start of every schedule the environment begins itself (a reset without
+        a clip, a reschedule), by the motion balancer's probabilities. NOTE: unweighted: the
+        sampler's adaptive clip weights (`sampler/clip_outcomes.py`) shape the episode's first clip
+        (the sampler's draw) but not the reschedules, since draws reach the actors without them."""
         lookback = self.ex.rsis_frames[1] + 1
-        self.scheduler = DatasetScheduler(self.ref_model, self._motion, balancer.clip_ids, balancer.probabilities, self.dt,
+        self.scheduler = DatasetScheduler(self.ref_model, self._motion, self.clip_manager, None, self.dt,
                                           speed=self.ex.speed, at_end=self.ex.at_clip_end, lookback=lookback,
                                           lookahead=self.ex.tau + 1, velocity_window=self.ex.target_velocity_window)
         self.balls = [self.model.body(f"projectile{i}").id for i in range(PROJECTILES)] if self.ex.projectile else []

@@ -4,11 +4,12 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import dataclasses
+from dataclasses import dataclass, field
 from typing import ClassVar
 
-from common.config_limits import FINITE, Limit, above, at_least, between, check_limits, validated
-from common.motion.root_height import ROOT_HEIGHT_RULES
+from common.config_limits import FINITE, Limit, above, at_least, check_limits, validated
+from common.motion.retarget_config import RetargetConfig
 
 TASK_PARAMS = ("speed", "heading")
 """Task parameters a shape task can sample per episode beside the shape."""
@@ -40,24 +41,26 @@ class ImitateConfig:
     got (`common.characters.operator.gains_follow_torque_limits`), so small bodies are not
     driven into their limits by the base's stiffness. False: the base's gains on every shape
     (METHOD.md A). The shape presets turn it on (measured in `learner.presets`)."""
-    retarget_root_height: str = "contact_set"
-    """Walkers: how the retargeted reference's root height is chosen per frame
+    retarget: RetargetConfig = field(default_factory=RetargetConfig)
+    """Walkers: how the clip is retargeted onto each shape (`--task.imitate.retarget.<field>`).
+    `root_height` chooses the reference's root height per frame
     (`common.motion.root_height.root_offsets`): "contact_set" (the highest foot of each frame's
     contact set on the floor), "foot_tracks" (continuous across contact-set changes: a
     quadruped whose diagonal pairs differ in length does not drop its root at each switch) or
     "contact_smooth" ("contact_set" lowered where needed so the root moves at most 0.5 m/s
-    across a switch: continuous, and the longer leg bends only around the switches)."""
-    retarget_body_clearance_m: float = 0.0
-    """Walkers: lift the retargeted reference's root where it brings a body other than the
-    feet closer to the floor than this (m; `common.motion.retarget.clearance_lift`), so the
+    across a switch: continuous, and the longer leg bends only around the switches).
+    `body_clearance_m` lifts the reference's root where it brings a body other than the feet
+    closer to the floor than this (m; `common.motion.retarget.clearance_lift`), so the
     reference never asks for a fall (by this task's rule); 0: off. On the lower biped's 300
     evaluation shapes the unlifted walk put a shin within 5 mm of the floor on 8, and all 8 fell
-    with `lower_biped-curriculum` (`morphmimic references`, `morphmimic evaluate`)."""
+    with `lower_biped-curriculum` (`morphmimic references`, `morphmimic evaluate`).
+    `clearance_shins_may_touch` is not set here: it follows `shin_contact_is_fall`."""
     shin_contact_is_fall: bool = True
     """Walkers: False lets the segment above each foot (a quadruped's shank) touch the floor
     without it counting as a fall; the trunk, head and thighs still end the episode. Every
     preset keeps Won & Lee's rule (True); the quadruped's preset let the shanks touch until its
-    shank was thinned on 2026-12-04 (on short, wide shapes the old one hung below the sole)."""
+    shank was thinned on 2026-12-04 (on short, wide shapes the old one hung below the sole).
+    The clearance lift (`retarget.body_clearance_m`) follows the same rule."""
     max_root_deviation: float = 0.0
     """Swimmers: terminate (as a fall) when the root is this many body lengths off the
     reference's course (sideways or vertically; lagging or leading along it is not a fall, see
@@ -86,7 +89,7 @@ class ImitateConfig:
     LIMITS: ClassVar[dict[str, Limit]] = {
         "speed_range": above(0), "heading_range_rad": FINITE, "action_scale": above(0), "action_clip": above(0),
         "max_root_deviation": at_least(0, False), "reward_weights": at_least(0, False), "reward_sensitivities": above(0),
-        "character_cache": at_least(1), "retarget_body_clearance_m": between(0, 0.1),
+        "character_cache": at_least(1),
     }
     """Allowed values of the numeric fields (`common.config_limits`)."""
 
@@ -102,7 +105,11 @@ class ImitateConfig:
             raise ValueError(f"--task.imitate.task-params = {self.task_params}: give any of {', '.join(TASK_PARAMS)}")
         if self.swimmer_speed not in SWIMMER_SPEED_RULES:
             raise ValueError(f"--task.imitate.swimmer-speed = {self.swimmer_speed!r}: give {', '.join(SWIMMER_SPEED_RULES)}")
-        if self.retarget_root_height not in ROOT_HEIGHT_RULES:
-            raise ValueError(f"--task.imitate.retarget-root-height = {self.retarget_root_height!r}: "
-                             f"give {', '.join(ROOT_HEIGHT_RULES)}")
+        if self.retarget.clearance_shins_may_touch:
+            raise ValueError("--task.imitate.retarget.clearance-shins-may-touch is set by the fall rule: "
+                             "give --task.imitate.no-shin-contact-is-fall instead")
+
+    def retarget_for_task(self) -> RetargetConfig:
+        """`retarget` with the clearance lift under this task's fall rule (`shin_contact_is_fall`)."""
+        return dataclasses.replace(self.retarget, clearance_shins_may_touch=not self.shin_contact_is_fall)
 

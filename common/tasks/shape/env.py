@@ -31,7 +31,6 @@ import numpy as np
 
 from common.characters import CharacterFactory, base_character
 from common.characters.operator import gains_follow_torque_limits
-from common.motion.retarget import RetargetConfig
 from common.params import ParamSpace
 from common.tasks.base import TaskConfig, step_physics
 from common.tasks.observations import JointLayout, heading, quat_to_mat, root_frame_features, yaw_matrix
@@ -110,9 +109,7 @@ class ImitateEnv:
         self.preset = character_preset(cfg)
         self.clip_id = cfg.imitate.clip_id or references.DEFAULT_CLIPS[self.preset]
         self.timestep_s = 1.0 / cfg.sim_hz
-        self.retarget = RetargetConfig(root_height=cfg.imitate.retarget_root_height,
-                                       body_clearance_m=cfg.imitate.retarget_body_clearance_m,
-                                       clearance_shins_may_touch=not cfg.imitate.shin_contact_is_fall)
+        self.retarget = cfg.imitate.retarget_for_task()
         self.space = self.param_space(cfg)
         self.n_shape = len(self.space.names) - len(cfg.imitate.task_params)
         self.rng = np.random.default_rng(seed)

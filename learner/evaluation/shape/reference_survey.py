@@ -40,8 +40,8 @@ def survey(preset: str, rule: str, clearance_m: float, shapes: np.ndarray) -> di
     from learner.presets import PRESETS
 
     task = PRESETS[preset][1].task
-    task = dataclasses.replace(task, imitate=dataclasses.replace(task.imitate, retarget_root_height=rule,
-                                                                 retarget_body_clearance_m=clearance_m))
+    retarget = dataclasses.replace(task.imitate.retarget, root_height=rule, body_clearance_m=clearance_m)
+    task = dataclasses.replace(task, imitate=dataclasses.replace(task.imitate, retarget=retarget))
     env = make_env(task, seed=0)
     flags = references.task_clip(env.preset, env.clip_id, env.timestep_s)[1].flags
     step, span, stance, clear = [], [], [], []

@@ -81,7 +81,7 @@ def test_foot_tracks_offset_is_continuous_where_the_contact_set_switches():
         assert np.all((h + dz[:, None])[flags] <= 1e-12)
     with pytest.raises(ValueError, match=re.escape("'stilts' is not one of contact_set | foot_tracks | contact_smooth")):
         root_offsets(h, flags, "stilts")
-    with pytest.raises(ValueError, match="root_height 'stilts'"):
+    with pytest.raises(ValueError, match="root-height = 'stilts'"):
         RetargetConfig(root_height="stilts")
 
 
@@ -186,7 +186,7 @@ def test_bad_smoothing_settings_are_refused():
     with pytest.raises(ValueError, match="contact_smooth rule needs max_step > 0"):
         root_offsets(h, flags, "contact_smooth")
     for field, value in (("root_speed_m_s", 0.0), ("ramp_s", -1.0), ("body_clearance_m", float("nan"))):
-        with pytest.raises(ValueError, match=f"{field} = "):
+        with pytest.raises(ValueError, match=f"{field.replace('_', '-')} = "):
             RetargetConfig(**{field: value})
 
 
@@ -204,7 +204,8 @@ def test_the_clearance_lift_follows_the_tasks_fall_rule():
 
     def root_z(clearance: float, shins_fall: bool) -> np.ndarray:
         env = make_env(dataclasses.replace(task, imitate=dataclasses.replace(
-            task.imitate, retarget_body_clearance_m=clearance, shin_contact_is_fall=shins_fall)))
+            task.imitate, retarget=dataclasses.replace(task.imitate.retarget, body_clearance_m=clearance),
+            shin_contact_is_fall=shins_fall)))
         env.reset(0, shape)
         return env.motion.qpos_frames[:, 2]
 
@@ -231,7 +232,7 @@ def test_contact_smooth_and_the_clearance_lift_on_the_mass_walk():
 
     def motion(rule: str, clearance: float, shape: np.ndarray):
         env = make_env(dataclasses.replace(task, imitate=dataclasses.replace(
-            task.imitate, retarget_root_height=rule, retarget_body_clearance_m=clearance)))
+            task.imitate, retarget=dataclasses.replace(task.imitate.retarget, root_height=rule, body_clearance_m=clearance))))
         env.reset(0, shape)
         return env, env.motion.qpos_frames
 
@@ -319,8 +320,8 @@ def test_the_lower_bipeds_walk_keeps_every_shank_clear_of_the_floor_on_the_evalu
     from learner.presets import PRESETS
 
     task = PRESETS["lower_biped"][1].task
-    task = dataclasses.replace(task, imitate=dataclasses.replace(task.imitate, retarget_root_height="contact_smooth",
-                                                                 retarget_body_clearance_m=0.0))
+    task = dataclasses.replace(task, imitate=dataclasses.replace(task.imitate, retarget=dataclasses.replace(
+        task.imitate.retarget, root_height="contact_smooth", body_clearance_m=0.0)))
     env = make_env(task)
     lowest = []
     for shape in task_space(task).uniform(np.random.default_rng(2019), 300):

@@ -7,9 +7,10 @@ initialization), `advance` one control step. A frame is a pose and velocity of t
 own model in the world (`TargetFrame`), so any source (a clip, a stitched queue, a keyboard
 generator, poses from video) plugs in without touching the task or retraining the policy.
 
-`DatasetScheduler` is the one training uses (UniCon 5.1): a clip (drawn by the motion balancer)
-from a random frame, rescheduled to another random clip and frame at the clip's end, or, for
-evaluation, stopping there. A rescheduled clip is placed where the character is: its root at the
+`DatasetScheduler` is the one training uses (UniCon 5.1): a clip and a start time drawn by a
+`ClipManager` (`common/motion/clip_manager.py`: the motion balancer's clips, uniform starts),
+rescheduled to another clip and start drawn by it at the clip's end, or, for evaluation,
+stopping there. A rescheduled clip is placed where the character is: its root at the
 new frame is moved onto the character's horizontal position and heading. UniCon also reschedules
 "on deviation": with `max_deviation_m` set, a character whose root drifts farther than that
 (horizontally) from the target root gets its schedule re-placed under it.
@@ -29,6 +30,7 @@ from typing import Callable, Protocol, Sequence
 import mujoco
 import numpy as np
 
+from common.motion.clip_manager import ClipManager
 from common.motion.reference import CharacterMotion
 from common.tasks.observations import heading, quat_to_mat, yaw_matrix
 
@@ -92,6 +94,11 @@ class DatasetScheduler:
     """Random clip and frame from a clip set, rescheduled (or stopped) at the clip's end
     (UniCon 2020, METHOD.md B "Schedulers": the dataset scheduler).
 
+    `clips` decides which clip and start each (re)schedule plays: a `ClipManager` (then
+    `probabilities` is None), or clip ids with their `probabilities`, made into one
+    (`ClipManager.with_probabilities`, durations from `motion`). Starts leave at least three
+    control steps of the clip after them, so a schedule is never empty.
+
     Deviation (UniCon: "reschedule at the end or on deviation"; opt-in, off by default):
     with `max_deviation_m` set, `advance` reschedules as soon as the character's root is
     farther than that from the target root in the horizontal plane. `on_deviation` says how:
@@ -109,12 +116,18 @@ class DatasetScheduler:
     targets.
     """
 
-    def __init__(self, model: mujoco.MjModel, motion: MotionFn, clip_ids: Sequence[str], probabilities: np.ndarray,
-                 dt_s: float, *, speed: float = 1.0, at_end: str = "reschedule", lookback: int = 12, lookahead: int = 2,
+    def __init__(self, model: mujoco.MjModel, motion: MotionFn, clips: ClipManager | Sequence[str],
+                 probabilities: np.ndarray | None, dt_s: float, *, speed: float = 1.0, at_end: str = "reschedule",
+                 lookback: int = 12, lookahead: int = 2,
                  max_deviation_m: float | None = None, on_deviation: str = "realign", deviation_grace_steps: int = 10,
                  velocity_window: int = 1):
-        if not clip_ids:
+        if isinstance(clips, ClipManager):
+            if probabilities is not None or clips.duration_s is None:
+                raise ValueError("DatasetScheduler: give a ClipManager that knows clip durations, and probabilities None")
+        elif not clips:
             raise ValueError("DatasetScheduler needs at least one clip")
+        else:
+            clips = ClipManager.with_probabilities(clips, probabilities, lambda c: motion(c).duration_s)
         if at_end not in ("reschedule", "stop"):
             raise ValueError(f"at_end {at_end!r} is not one of reschedule, stop")
         if max_deviation_m is not None and not (math.isfinite(max_deviation_m) and max_deviation_m > 0):
@@ -126,8 +139,8 @@ class DatasetScheduler:
         self.deviation_grace_steps = int(deviation_grace_steps)
         self.deviation_reschedules = 0
         self.model, self.motion = model, motion
-        self.clip_ids = tuple(clip_ids)
-        self.probabilities = np.asarray(probabilities, dtype=np.float64)
+        self.clips = clips
+        self.clip_ids = clips.clip_ids
         self.dt, self.speed, self.at_end = float(dt_s), float(speed), at_end
         if isinstance(velocity_window, bool) or not (isinstance(velocity_window, int) and 1 <= velocity_window <= 30):
             raise ValueError(f"velocity_window {velocity_window!r} must be a whole number of control steps in 1 .. 30")
@@ -144,15 +157,14 @@ class DatasetScheduler:
     def begin(self, rng: np.random.Generator, clip_id: str | None = None, start_s: float | None = None,
               align_to: np.ndarray | None = None) -> None:
         if clip_id is None or clip_id == "":
-            clip_id = self.clip_ids[int(rng.choice(len(self.clip_ids), p=self.probabilities))]
+            clip_id = self.clips.draw_clip(rng)
         elif clip_id not in self.clip_ids and clip_id not in self.extra_ids:
             raise ValueError(f"clip {clip_id!r} is not in this scheduler's set ({len(self.clip_ids)} clips: "
                              f"{', '.join(self.clip_ids[:6])}{', ...' if len(self.clip_ids) > 6 else ''})")
         m = self.motion(clip_id)
         duration = m.duration_s
         if start_s is None:
-            # NOTE: leave at least a few control steps before the end so a schedule is never empty.
-            start_s = float(rng.uniform(0.0, max(0.0, duration - 3 * self.dt * self.speed)))
+            start_s = self.clips.draw_start(rng, clip_id, min_left_s=3 * self.dt * self.speed)
         if not 0.0 <= start_s <= duration:
             raise ValueError(f"start {start_s} s is outside clip {clip_id!r} (0 .. {duration:.3f} s)")
         self.clip_id, self._motion, self.t0 = clip_id, m, float(start_s)

@@ -54,26 +54,27 @@ def make_scheduler(name: str, env: Any, **options: Any) -> Scheduler:
 
 
 def _dataset(env: Any, frames: dict, *, clips: tuple[str, ...] = (), **options: Any) -> Scheduler:
-    """A dataset scheduler over `clips` (drawn uniformly) or, by default, the task's clips drawn
-    by the motion balancer; options default to the task's (speed, at_end, target velocity window)."""
+    """A dataset scheduler over `clips` (drawn uniformly) or, by default, the environment's own
+    `ClipManager` (the task's clips by the motion balancer); options default to the task's
+    (speed, at_end, target velocity window)."""
     import numpy as np
 
+    from common.motion.clip_manager import ClipManager
     from common.tasks.executor.schedulers.base import DatasetScheduler
-    from common.motion.balancer import MotionBalancer
 
     if clips:
         known = _known_clips(env)
         unknown = [c for c in clips if c not in known]
         if unknown:
             raise ValueError(f"clips {unknown} do not play on the humanoid; choose from: {', '.join(known[:8])}, ...")
-        ids, probs = tuple(clips), np.full(len(clips), 1.0 / len(clips))
+        manager = ClipManager.with_probabilities(tuple(clips), np.full(len(clips), 1.0 / len(clips)),
+                                                 env.clip_manager.duration_s)
     else:
-        balancer = MotionBalancer(env.clip_list)
-        ids, probs = balancer.clip_ids, balancer.probabilities
+        manager = env.clip_manager
     options.setdefault("speed", env.ex.speed)
     options.setdefault("at_end", env.ex.at_clip_end)
     options.setdefault("velocity_window", env.ex.target_velocity_window)
-    return DatasetScheduler(env.ref_model, env._motion, ids, probs, env.dt, **frames, **options)
+    return DatasetScheduler(env.ref_model, env._motion, manager, None, env.dt, **frames, **options)
 
 
 def _known_clips(env: Any) -> list[str]:

@@ -12,6 +12,7 @@ import pytest
 
 from common.tasks.base import TaskConfig
 from common.tasks.body_config import BodyConfig
+from common.motion.retarget_config import RetargetConfig
 from common.tasks.shape.config import ImitateConfig
 from common.tasks.observations import heading, quat_to_mat, yaw_matrix
 from common.tasks.registry import make_env
@@ -155,8 +156,8 @@ def test_shape_box_scale_shrinks_the_box_toward_the_base_shape() -> None:
 
 
 def test_an_unknown_root_height_rule_is_refused_by_its_flag() -> None:
-    with pytest.raises(ValueError, match=re.escape("--task.imitate.retarget-root-height = 'stilts': give contact_set, foot_tracks, contact_smooth")):
-        ImitateConfig(retarget_root_height="stilts")
+    with pytest.raises(ValueError, match=re.escape("--task.imitate.retarget.root-height = 'stilts': give contact_set, foot_tracks, contact_smooth")):
+        ImitateConfig(retarget=RetargetConfig(root_height="stilts"))
 
 
 def test_task_parameters_rotate_and_speed_up_the_reference() -> None:
