@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from learner.evaluation import cli_args, eval_core
+from learner import checkpoint
 
 
 def describe(cfg) -> str:
@@ -50,7 +51,7 @@ def describe(cfg) -> str:
     return ", ".join(parts)
 
 
-def _still_valid(res_file: Path, loaded: eval_core.Loaded, args: argparse.Namespace) -> bool:
+def _still_valid(res_file: Path, loaded: checkpoint.Loaded, args: argparse.Namespace) -> bool:
     """Whether an earlier results.json measured this checkpoint by this protocol on the body this
     tree builds; a file that is not such a results.json is measured again, not trusted."""
     from common.tasks.shape.env import character_preset
@@ -71,7 +72,7 @@ def _still_valid(res_file: Path, loaded: eval_core.Loaded, args: argparse.Namesp
 
 def evaluate_one(ckpt: str, out: Path, args: argparse.Namespace, folder: str = "") -> dict:
     """Evaluate one checkpoint into `<out>/<folder>` (default: its run name)."""
-    loaded = eval_core.load(ckpt)
+    loaded = checkpoint.load_trained(ckpt)
     target = out / (folder or loaded.name)
     res_file = target / "results.json"
     if res_file.exists() and _still_valid(res_file, loaded, args):
@@ -91,12 +92,11 @@ def evaluate_one(ckpt: str, out: Path, args: argparse.Namespace, folder: str = "
 def arms_of(paths: list[str], last: int) -> list[list[str]]:
     """Each path's checkpoints as one arm: a run directory's newest `last` (all it has when it has
     fewer), a checkpoint folder or file itself alone; SystemExit naming a path that holds none."""
-    from learner import checkpoint
 
     arms = []
     for path in paths:
         found = checkpoint.list_checkpoints(Path(path) / "ckpt")
-        arms.append([str(c) for c in found[-last:]] if found else [str(eval_core.resolve(path).parent)])
+        arms.append([str(c) for c in found[-last:]] if found else [str(checkpoint.resolve(path).parent)])
     return arms
 
 
@@ -128,7 +128,7 @@ def _number(x: object) -> float:
 def _folders(checkpoints: list[str]) -> list[str]:
     """Output folder per checkpoint: its run name, or `<run name>-<iteration>` when several
     checkpoints of one run are compared (so one does not overwrite another's results)."""
-    loaded = [eval_core.load(c) for c in checkpoints]
+    loaded = [checkpoint.load_trained(c) for c in checkpoints]
     names = [x.name for x in loaded]
     return [f"{x.name}-{int(x.state['iteration'])}" if names.count(x.name) > 1 else x.name for x in loaded]
 
@@ -288,7 +288,7 @@ def main(argv: list[str]) -> int:
     p.add_argument("--last", type=cli_args.positive_int, default=1,
                    help="take each run directory's newest N checkpoints as one arm, judged on their means (default 1)")
     args = p.parse_args(argv)
-    executors = [c for c in args.checkpoints if eval_core.load(c).cfg.task.name == "executor"]
+    executors = [c for c in args.checkpoints if checkpoint.load_trained(c).cfg.task.name == "executor"]
     if executors:
         p.error(f"--checkpoints {' '.join(executors)}: executor checkpoints; compare them with executor checkpoints only")
     out = Path(args.out)

@@ -15,7 +15,6 @@ choose_offscreen_gl()
 import dataclasses
 import json
 import multiprocessing
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
@@ -27,54 +26,7 @@ from common.policy import GaussianPolicy
 from common.tasks.base import TaskConfig
 from common.tasks.registry import make_env
 from learner import checkpoint
-from learner.config import RunConfig
 from learner.evaluation.shape.swim_metrics import SwimTracker, summarize_swim
-
-
-@dataclass(frozen=True)
-class Loaded:
-    """A checkpoint ready to run: its resolved run config, the raw state and where it came from."""
-
-    cfg: RunConfig
-    state: dict[str, Any]
-    path: Path
-
-    @property
-    def name(self) -> str:
-        return self.cfg.name
-
-
-def resolve(path: str | Path) -> Path:
-    """A checkpoint directory (with state.pt), a state.pt file, a run directory (its newest
-    `ckpt/<it>/`) or a shipped `learner/pretrained/<name>` -> the state.pt file."""
-    p = Path(path)
-    if p.is_file():
-        return p
-    if (p / checkpoint.FILE).is_file():
-        return p / checkpoint.FILE
-    found = checkpoint.list_checkpoints(p / "ckpt")
-    if found:
-        return found[-1] / checkpoint.FILE
-    raise SystemExit(f"--checkpoint {path}: no state.pt there, nor a run directory with ckpt/<iteration>/state.pt")
-
-
-def load(path: str | Path) -> Loaded:
-    file = resolve(path)
-    try:
-        state = checkpoint.load(file)
-    except checkpoint.CheckpointError as exc:
-        raise SystemExit(str(exc)) from None
-    if "config" not in state or "policy" not in state:
-        raise SystemExit(f"{file} holds no 'config'/'policy': not a morphmimic training checkpoint")
-    try:
-        cfg = RunConfig.from_json(str(state["config"]))
-        if cfg.task.name == "executor":  # its named clips must play on the humanoid
-            from common.tasks.executor.env import labelled_clips
-
-            labelled_clips(cfg.task)
-    except ValueError as exc:
-        raise SystemExit(f"{file}: its saved configuration is refused: {exc}") from None
-    return Loaded(cfg, state, file)
 
 
 def check_box_scale(box_scale: float) -> float:
@@ -93,17 +45,6 @@ def eval_task(cfg: TaskConfig, episode_s: float, box_scale: float = 1.0) -> Task
     return dataclasses.replace(cfg, episode_s=episode_s,
                                body=dataclasses.replace(cfg.body, vary_shape=True, shape_box_scale=box_scale),
                                imitate=dataclasses.replace(cfg.imitate, random_start_phase=False))
-
-
-def make_policy(loaded: Loaded, obs_dim: int, act_dim: int) -> GaussianPolicy:
-    policy = GaussianPolicy(obs_dim, act_dim, loaded.cfg.policy)
-    try:
-        policy.load_state_dict(loaded.state["policy"])
-    except (RuntimeError, TypeError, AttributeError) as exc:  # wrong shapes or keys; not a state dict at all
-        raise SystemExit(f"{loaded.path}: the policy does not fit task {loaded.cfg.task.name!r} as this code builds it "
-                         f"(obs {obs_dim}, act {act_dim}): {exc}") from None
-    policy.eval()
-    return policy
 
 
 class ZeroPolicy:
@@ -248,12 +189,12 @@ _WORKER: dict[str, Any] = {}
 
 def _init_worker(state_file: str, imitate_overrides: dict, episode_s: float, box_scale: float) -> None:
     torch.set_num_threads(1)
-    loaded = load(state_file)
+    loaded = checkpoint.load_trained(state_file)
     cfg = loaded.cfg.task
     task = eval_task(dataclasses.replace(cfg, imitate=dataclasses.replace(cfg.imitate, **imitate_overrides)),
                      episode_s, box_scale)
     env = make_env(task, seed=0)
-    _WORKER.update(env=env, policy=make_policy(loaded, env.obs_dim, env.act_dim))
+    _WORKER.update(env=env, policy=checkpoint.make_policy(loaded, env.obs_dim, env.act_dim))
 
 
 def _work(job: tuple[int, np.ndarray, int]) -> dict[str, Any]:
@@ -262,7 +203,7 @@ def _work(job: tuple[int, np.ndarray, int]) -> dict[str, Any]:
     return {"index": i, "params": [float(x) for x in params], **out}
 
 
-def evaluate(loaded: Loaded, shapes: np.ndarray, episode_s: float, seed: int, workers: int = 1,
+def evaluate(loaded: checkpoint.Loaded, shapes: np.ndarray, episode_s: float, seed: int, workers: int = 1,
              progress: Callable[[int, int], None] | None = None, imitate_overrides: dict | None = None,
              box_scale: float = 1.0) -> list[dict]:
     """Run one episode per row of `shapes` (inside the box `eval_task(..., box_scale)` accepts);
@@ -343,7 +284,7 @@ def names_executor(argv: list[str], checkpoint_option: str) -> bool:
     if not paths:
         return False
     try:
-        return load(paths[0]).cfg.task.name == "executor"
+        return checkpoint.load_trained(paths[0]).cfg.task.name == "executor"
     except SystemExit:
         return False
 

@@ -33,6 +33,7 @@ import numpy as np
 
 from common.motion.root_height import ROOT_HEIGHT_RULES
 from learner.evaluation import cli_args, eval_core
+from learner import checkpoint
 from learner.evaluation.shape import plots as eval_plots
 from learner.evaluation.shape import swim_metrics
 
@@ -68,7 +69,7 @@ def parse(argv: list[str]) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
-def render_episode(loaded: eval_core.Loaded, params: np.ndarray, seed: int, episode_s: float, out: Path, stem: str,
+def render_episode(loaded: checkpoint.Loaded, params: np.ndarray, seed: int, episode_s: float, out: Path, stem: str,
                    gif: bool, box_scale: float = 1.0, imitate_overrides: dict | None = None) -> list[str]:
     import dataclasses
 
@@ -77,7 +78,7 @@ def render_episode(loaded: eval_core.Loaded, params: np.ndarray, seed: int, epis
     task = loaded.cfg.task
     task = dataclasses.replace(task, imitate=dataclasses.replace(task.imitate, **(imitate_overrides or {})))
     env = make_env(eval_core.eval_task(task, episode_s, box_scale), seed=0)
-    policy = eval_core.make_policy(loaded, env.obs_dim, env.act_dim)
+    policy = checkpoint.make_policy(loaded, env.obs_dim, env.act_dim)
     rec = eval_plots.Recorder(every=3 if gif else 6)
     eval_core.run_episode(env, policy, params, seed, on_step=rec)
     rec(env, 0)  # the final state too: a shape that falls at once still gets a picture
@@ -88,7 +89,7 @@ def render_episode(loaded: eval_core.Loaded, params: np.ndarray, seed: int, epis
     return [str(p) for p in written if p is not None]
 
 
-def markdown(name: str, summary: dict, args: argparse.Namespace, files: list[str], loaded: eval_core.Loaded) -> str:
+def markdown(name: str, summary: dict, args: argparse.Namespace, files: list[str], loaded: checkpoint.Loaded) -> str:
     s = summary
     lines = [
         f"# Evaluation of `{name}`", "",
@@ -196,7 +197,7 @@ def main(argv: list[str]) -> int:
                                + (["--gif"] if args.gif else []))
     if args.strength is not None:
         raise SystemExit(f"--strength {args.strength} is a morph demo option: use it with --morph")
-    loaded = eval_core.load(args.checkpoint)
+    loaded = checkpoint.load_trained(args.checkpoint)
     from common.tasks.registry import make_env, task_space
 
     task = eval_core.eval_task(loaded.cfg.task, args.episode_s, args.box_scale)

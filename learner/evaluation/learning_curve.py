@@ -61,7 +61,7 @@ def main(argv: list[str]) -> int:
     ckpts = checkpoint.list_checkpoints(Path(args.ckpt_dir))
     if not ckpts:
         raise SystemExit(f"--ckpt-dir {args.ckpt_dir}: no checkpoints")
-    newest = eval_core.load(ckpts[-1])  # the run's task decides which curve
+    newest = checkpoint.load_trained(ckpts[-1])  # the run's task decides which curve
     executor = newest.cfg.task.name == "executor"
     kind_flags = {"--shapes": args.shapes, "--episode-s": args.episode_s, "--seed": args.seed, "--box-scale": args.box_scale}
     if executor:
@@ -95,7 +95,7 @@ def main(argv: list[str]) -> int:
     for c in ckpts:
         if int(c.name) in done:  # checkpoint directories are named by iteration: skip without loading
             continue
-        loaded = eval_core.load(c)
+        loaded = checkpoint.load_trained(c)
         if loaded.cfg.task.name != newest.cfg.task.name:
             raise SystemExit(f"{loaded.path}: task {loaded.cfg.task.name!r}, but the newest checkpoint in --ckpt-dir "
                              f"is {newest.cfg.task.name!r}: one curve is one run")
@@ -129,7 +129,7 @@ def main(argv: list[str]) -> int:
     return 0
 
 
-def _shape_figures(loaded: eval_core.Loaded, args: argparse.Namespace) -> dict:
+def _shape_figures(loaded: checkpoint.Loaded, args: argparse.Namespace) -> dict:
     """A shape controller's figures on the curve's random shapes (`eval_core.summarize`)."""
     from common.tasks.registry import make_env
 

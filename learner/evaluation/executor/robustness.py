@@ -55,6 +55,7 @@ from typing import Any
 import numpy as np
 
 from learner.evaluation import cli_args, eval_core
+from learner import checkpoint
 
 from learner.evaluation.executor import evaluate as xe
 from common.characters.mass import scale_body_mass, set_body_mass
@@ -133,7 +134,7 @@ def projectile_flight_steps(row: Row, control_hz: float) -> int:
     return int(math.ceil(p.projectile_distance_m / p.projectile_speed_mps * control_hz))
 
 
-def projectile_problem(loaded: eval_core.Loaded, clip: xe.EvalClip) -> str | None:
+def projectile_problem(loaded: checkpoint.Loaded, clip: xe.EvalClip) -> str | None:
     """Why the projectile rows cannot run with this environment, or None: the character must
     start on the tracked frame in an environment that has the projectile body."""
     env = xe.make_eval_env(loaded, [clip], xe.Perturbation(projectile_every=1))
@@ -145,7 +146,7 @@ def projectile_problem(loaded: eval_core.Loaded, clip: xe.EvalClip) -> str | Non
     return None
 
 
-def executor_rows(loaded: eval_core.Loaded, clips: list[xe.EvalClip], starts: int, workers: int, rows: list[Row],
+def executor_rows(loaded: checkpoint.Loaded, clips: list[xe.EvalClip], starts: int, workers: int, rows: list[Row],
                   log=print) -> tuple[dict, list[dict]]:
     """(the unperturbed row, one result per row), the same (clip, start) episodes in each."""
     base_env = xe.make_eval_env(loaded, clips)
@@ -226,10 +227,10 @@ def _init_shape(state_file: str, episode_s: float, pert: xe.Perturbation) -> Non
     from common.tasks.registry import make_env
 
     torch.set_num_threads(1)
-    loaded = eval_core.load(state_file)
+    loaded = checkpoint.load_trained(state_file)
     env = make_env(_shape_task(loaded.cfg.task, episode_s, pert.speed), seed=0)
     _SHAPE.update(env=_MassScaled(env, pert.mass) if pert.mass != 1.0 else env,
-                  policy=eval_core.make_policy(loaded, env.obs_dim, env.act_dim), pert=pert)
+                  policy=checkpoint.make_policy(loaded, env.obs_dim, env.act_dim), pert=pert)
 
 
 def _shape_work(job: tuple[int, np.ndarray, int]) -> dict[str, Any]:
@@ -242,7 +243,7 @@ def _shape_work(job: tuple[int, np.ndarray, int]) -> dict[str, Any]:
     return {"index": i, "return": r["return"], "fell": r["fell"] or r["diverged"], "steps": r["steps"]}
 
 
-def shape_rows(loaded: eval_core.Loaded, shapes: int, episode_s: float, seed: int, workers: int, rows: list[Row],
+def shape_rows(loaded: checkpoint.Loaded, shapes: int, episode_s: float, seed: int, workers: int, rows: list[Row],
                log=print) -> tuple[dict, list[dict]]:
     """(the unperturbed row, one result per row) for a shape controller on `shapes` random shapes."""
     from common.tasks.registry import task_space
@@ -338,7 +339,7 @@ def main(argv: list[str]) -> int:
                         f"{', '.join(xe.SETTABLE)}")
     p.add_argument("--out", default="", help="output directory (default: <checkpoint dir>/robustness)")
     args = p.parse_args(argv)
-    loaded = eval_core.load(args.checkpoint)
+    loaded = checkpoint.load_trained(args.checkpoint)
     executor = loaded.cfg.task.name == "executor"
     defaults = vars(p.parse_args(["--checkpoint", args.checkpoint]))
     wrong = (("shapes", "episode_s", "seed") if executor else ("clips", "starts", "projectile_speed", "projectile_distance",

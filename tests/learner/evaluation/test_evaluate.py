@@ -77,7 +77,7 @@ def test_same_seed_gives_the_same_shapes(tmp_path: Path) -> None:
     from learner.evaluation import eval_core
 
     _tiny_checkpoint(tmp_path, "tiny")
-    loaded = eval_core.load(tmp_path / "tiny")
+    loaded = checkpoint.load_trained(tmp_path / "tiny")
     from common.tasks.registry import task_space
 
     space = task_space(eval_core.eval_task(loaded.cfg.task, 1.0))
@@ -189,7 +189,7 @@ def test_evaluate_box_scale_draws_shapes_from_the_shrunk_box(tmp_path: Path, cap
     assert "in the box x0.25" in capsys.readouterr().out
     res = json.loads((out / "results.json").read_text())
     assert res["meta"]["box_scale"] == 0.25 and "shrunk x0.25" in (out / "summary.md").read_text()
-    full = task_space(eval_core.eval_task(eval_core.load(tmp_path / "tiny").cfg.task, 1.0))
+    full = task_space(eval_core.eval_task(checkpoint.load_trained(tmp_path / "tiny").cfg.task, 1.0))
     base, lo, hi = full.default_array, full.low_array, full.high_array
     params = np.array([r["params"] for r in res["shapes"]])
     assert np.all(params >= base + 0.25 * (lo - base) - 1e-12) and np.all(params <= base + 0.25 * (hi - base) + 1e-12)
@@ -314,11 +314,11 @@ def test_a_map_that_is_more_even_only_in_its_worst_cell_is_called_so() -> None:
 
 
 def test_ablation_keeps_two_checkpoints_of_one_run_apart(tmp_path: Path) -> None:
-    from learner.evaluation import ablation, eval_core
+    from learner.evaluation import ablation
     from learner.learner import Learner
 
     first = _tiny_checkpoint(tmp_path, "run")
-    state = Learner(eval_core.load(first).cfg).state_dict()
+    state = Learner(checkpoint.load_trained(first).cfg).state_dict()
     state["iteration"] = 5
     second = checkpoint.save(tmp_path / "run" / "ckpt", 5, state, keep=2)
     out = tmp_path / "abl"
@@ -328,12 +328,12 @@ def test_ablation_keeps_two_checkpoints_of_one_run_apart(tmp_path: Path) -> None
 
 
 def test_ablation_last_n_takes_each_runs_newest_checkpoints_as_one_arm(tmp_path: Path) -> None:
-    from learner.evaluation import ablation, eval_core
+    from learner.evaluation import ablation
     from learner.learner import Learner
 
     for name, changes in (("norm", {}), ("nonorm", {"reward_normalization": False})):
         first = _tiny_checkpoint(tmp_path, name, **changes)
-        state = Learner(eval_core.load(first).cfg).state_dict()
+        state = Learner(checkpoint.load_trained(first).cfg).state_dict()
         for it in (5, 9):
             state["iteration"] = it
             checkpoint.save(tmp_path / name / "ckpt", it, state, keep=3)
@@ -379,12 +379,11 @@ def test_an_arms_mean_row_averages_its_checkpoints_and_says_whether_arms_are_apa
 
 
 def test_morph_demo_changes_the_body_during_the_episode(tmp_path: Path) -> None:
-    from learner.evaluation import eval_core
     from learner.evaluation.shape import morph_demo
 
     _tiny_checkpoint(tmp_path, "tiny")
     schedule = [(0.0, {}), (0.3, {"global_z": 1.3})]
-    result = morph_demo.run_morph(eval_core.load(tmp_path / "tiny"), schedule)
+    result = morph_demo.run_morph(checkpoint.load_trained(tmp_path / "tiny"), schedule)
     assert result["morphs"] >= 5
 
 
@@ -467,10 +466,9 @@ def test_shipped_controller_stays_up_through_a_moderate_morph(name: str, strengt
     lower_biped is not good enough (it falls within about 2 s even without a morph);
     lower_biped-curriculum, trained on the old reference and MASS's shank box, falls at half
     strength on the slimmer shank (4.9 s), not at 0.3 (its README)."""
-    from learner.evaluation import eval_core
     from learner.evaluation.shape import morph_demo
 
-    result = morph_demo.run_morph(eval_core.load(PRETRAINED / name), strength=strength)
+    result = morph_demo.run_morph(checkpoint.load_trained(PRETRAINED / name), strength=strength)
     assert result["morphs"] > 10
     assert not result["fell"], f"fell after {result['seconds']:.1f} s of {result['planned_seconds']:.1f} s"
 
@@ -508,7 +506,7 @@ def test_the_papers_fall_rule_can_end_the_episodes() -> None:
     paper's fall, so the two fall flags agree; the task's rule lets the shins touch."""
     from learner.evaluation import eval_core
 
-    loaded = eval_core.load(PRETRAINED / "quadruped")
+    loaded = checkpoint.load_trained(PRETRAINED / "quadruped")
     from common.tasks.registry import task_space
 
     shapes = eval_core.eval_shapes(task_space(loaded.cfg.task), 4, 7)
