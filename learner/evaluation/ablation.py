@@ -35,7 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
-from learner.evaluation import cli_args, eval_core
+from learner.evaluation import cli_args, harness
+from learner.evaluation.shape import episodes
 from learner import checkpoint
 
 
@@ -65,7 +66,7 @@ def _still_valid(res_file: Path, loaded: checkpoint.Loaded, args: argparse.Names
                     and meta.get("fall_rule", "task") == args.fall_rule
                     and meta.get("root_height", imitate.retarget_root_height) == imitate.retarget_root_height
                     and meta.get("clearance_m", imitate.retarget_body_clearance_m) == imitate.retarget_body_clearance_m
-                    and meta.get("body_digest") == eval_core.body_digest(character_preset(loaded.cfg.task)))
+                    and meta.get("body_digest") == episodes.body_digest(character_preset(loaded.cfg.task)))
     except (ValueError, KeyError, TypeError, AttributeError):  # not JSON, or not an evaluation's results
         return False
 
@@ -270,7 +271,7 @@ def effects(rows: list[dict]) -> list[str]:
 
 
 def main(argv: list[str]) -> int:
-    if eval_core.names_executor(argv, "--checkpoints"):
+    if harness.names_executor(argv, "--checkpoints"):
         from learner.evaluation.executor import ablation as executor_ablation
 
         return executor_ablation.main(argv)
@@ -316,7 +317,7 @@ def main(argv: list[str]) -> int:
         "fall far less. Task achievement is this project's own scale, not comparable with the paper's; every "
         "difference from the paper's protocol is listed in docs/shape-controllers.md.", "",
     ])
-    eval_core.write_ablation(out, text, [{"name": r["meta"]["name"], "training": describe(r["loaded"].cfg), "meta": r["meta"],
+    harness.write_ablation(out, text, [{"name": r["meta"]["name"], "training": describe(r["loaded"].cfg), "meta": r["meta"],
                                           "summary": r["summary"],
                                           **({"checkpoint_falls": r["checkpoint_falls"]} if "checkpoint_falls" in r else {})}
                                          for r in rows])

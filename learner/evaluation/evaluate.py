@@ -32,7 +32,8 @@ from pathlib import Path
 import numpy as np
 
 from common.motion.root_height import ROOT_HEIGHT_RULES
-from learner.evaluation import cli_args, eval_core
+from learner.evaluation import cli_args, harness
+from learner.evaluation.shape import episodes
 from learner import checkpoint
 from learner.evaluation.shape import plots as eval_plots
 from learner.evaluation.shape import swim_metrics
@@ -77,10 +78,10 @@ def render_episode(loaded: checkpoint.Loaded, params: np.ndarray, seed: int, epi
 
     task = loaded.cfg.task
     task = dataclasses.replace(task, imitate=dataclasses.replace(task.imitate, **(imitate_overrides or {})))
-    env = make_env(eval_core.eval_task(task, episode_s, box_scale), seed=0)
+    env = make_env(harness.eval_task(task, episode_s, box_scale), seed=0)
     policy = checkpoint.make_policy(loaded, env.obs_dim, env.act_dim)
     rec = eval_plots.Recorder(every=3 if gif else 6)
-    eval_core.run_episode(env, policy, params, seed, on_step=rec)
+    episodes.run_episode(env, policy, params, seed, on_step=rec)
     rec(env, 0)  # the final state too: a shape that falls at once still gets a picture
     rec.close()
     written = [rec.write_strip(out / f"{stem}.png")]
@@ -179,7 +180,7 @@ _NOT_MORPH = ("shapes", "seed", "episode_s", "workers", "box_scale", "map_params
 
 
 def main(argv: list[str]) -> int:
-    if eval_core.names_executor(argv, "--checkpoint"):
+    if harness.names_executor(argv, "--checkpoint"):
         from learner.evaluation.executor import report as executor_report
 
         return executor_report.main(argv)
@@ -200,7 +201,7 @@ def main(argv: list[str]) -> int:
     loaded = checkpoint.load_trained(args.checkpoint)
     from common.tasks.registry import make_env, task_space
 
-    task = eval_core.eval_task(loaded.cfg.task, args.episode_s, args.box_scale)
+    task = harness.eval_task(loaded.cfg.task, args.episode_s, args.box_scale)
     try:
         env = make_env(task, seed=0)
     except ValueError as exc:  # e.g. a swimmer's stroke-speed model that is missing or does not fit
@@ -214,7 +215,7 @@ def main(argv: list[str]) -> int:
     out.mkdir(parents=True, exist_ok=True)
     names = args.map_params or list(loaded.cfg.sampler.plot_params) or list(space.names[:2])
     eval_plots.axes_of(space, names)  # a bad --map-params fails now, not after hours of episodes
-    shapes = eval_core.eval_shapes(space, args.shapes, args.seed)
+    shapes = episodes.eval_shapes(space, args.shapes, args.seed)
     t0 = time.monotonic()
     last = [0.0]
 
@@ -228,14 +229,14 @@ def main(argv: list[str]) -> int:
         overrides["retarget_root_height"] = args.root_height
     if args.clearance is not None:
         overrides["retarget_body_clearance_m"] = args.clearance
-    results = eval_core.evaluate(loaded, shapes, args.episode_s, args.seed, args.workers, progress,
+    results = episodes.evaluate(loaded, shapes, args.episode_s, args.seed, args.workers, progress,
                                  imitate_overrides=overrides, box_scale=args.box_scale)
-    summary = eval_core.summarize(results, space, n_shape)
+    summary = episodes.summarize(results, space, n_shape)
     summary["wall_s"] = time.monotonic() - t0
     meta = {"checkpoint": str(loaded.path), "name": loaded.name, "iteration": int(loaded.state.get("iteration", 0)),
             "env_steps": int(loaded.state.get("env_steps", 0)), "seed": args.seed, "episode_s": args.episode_s,
             "box_scale": args.box_scale, "param_names": list(space.names), "map_params": names,
-            "fall_rule": args.fall_rule, "body_digest": eval_core.body_digest(env.character.preset),
+            "fall_rule": args.fall_rule, "body_digest": episodes.body_digest(env.character.preset),
             "root_height": args.root_height or loaded.cfg.task.imitate.retarget_root_height,
             "clearance_m": loaded.cfg.task.imitate.retarget_body_clearance_m if args.clearance is None else args.clearance}
     if env.character.is_swimmer:

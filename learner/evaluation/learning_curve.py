@@ -31,7 +31,8 @@ import numpy as np  # noqa: E402
 
 from learner import checkpoint
 
-from learner.evaluation import cli_args, eval_core  # noqa: E402
+from learner.evaluation import cli_args, harness  # noqa: E402
+from learner.evaluation.shape import episodes
 
 from learner.evaluation.executor import curve as executor_curve
 
@@ -130,13 +131,13 @@ def main(argv: list[str]) -> int:
 
 
 def _shape_figures(loaded: checkpoint.Loaded, args: argparse.Namespace) -> dict:
-    """A shape controller's figures on the curve's random shapes (`eval_core.summarize`)."""
+    """A shape controller's figures on the curve's random shapes (`episodes.summarize`)."""
     from common.tasks.registry import make_env
 
-    env = make_env(eval_core.eval_task(loaded.cfg.task, args.episode_s, args.box_scale), seed=0)
-    shapes = eval_core.eval_shapes(env.space, args.shapes, args.seed)
-    res = eval_core.evaluate(loaded, shapes, args.episode_s, args.seed, args.workers, box_scale=args.box_scale)
-    return eval_core.summarize(res, env.space, getattr(env, "n_shape", env.space.dim))
+    env = make_env(harness.eval_task(loaded.cfg.task, args.episode_s, args.box_scale), seed=0)
+    shapes = episodes.eval_shapes(env.space, args.shapes, args.seed)
+    res = episodes.evaluate(loaded, shapes, args.episode_s, args.seed, args.workers, box_scale=args.box_scale)
+    return episodes.summarize(res, env.space, getattr(env, "n_shape", env.space.dim))
 
 
 def _write(path: Path, header: dict, rows: dict[int, dict]) -> None:
@@ -186,7 +187,7 @@ def every_nth(ckpts: list[Path], n: int) -> list[Path]:
 
 
 # Version of the extreme-10% column: "base" since it ranks shapes by their distance from the base
-# shape (`eval_core.extremeness`); curves written before then ranked them from the box centre.
+# shape (`episodes.extremeness`); curves written before then ranked them from the box centre.
 EXTREME = "base"
 PROTOCOL = ("shapes", "episode_s", "seed", "box_scale")
 

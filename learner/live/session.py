@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from common.characters.mass import scale_body_mass
-from learner.evaluation import eval_core
+from learner.evaluation import harness
 from learner import checkpoint
 
 AGENTS = ("policy", "zero", "random")
@@ -69,7 +69,7 @@ def live_task(loaded: checkpoint.Loaded, clip: str | None = None, episode_s: flo
                                  reactive_init=False, on_frame_share=0.0, catch_up_steps=0, termination="none",
                                  projectile=True)
         return dataclasses.replace(cfg, episode_s=episode_s, executor=ex)
-    return dataclasses.replace(eval_core.eval_task(cfg, episode_s), **({"clip_id": clip} if clip else {}))
+    return dataclasses.replace(harness.eval_task(cfg, episode_s), **({"clip_id": clip} if clip else {}))
 
 
 class LiveSession:

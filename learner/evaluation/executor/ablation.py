@@ -22,7 +22,7 @@ import json
 import sys
 from pathlib import Path
 
-from learner.evaluation import cli_args, eval_core
+from learner.evaluation import cli_args, harness
 from learner import checkpoint
 
 from learner.evaluation.executor import evaluate as xe
@@ -129,7 +129,7 @@ def main(argv: list[str]) -> int:
         "objective is \"crucial to training\" (8.2) and, like reactive state initialization, is ablated only visually "
         "(the paper's video).", "",
     ])
-    eval_core.write_ablation(out, text, [{"name": r["meta"]["name"], "settings": settings(r["loaded"].cfg), "meta": r["meta"],
+    harness.write_ablation(out, text, [{"name": r["meta"]["name"], "settings": settings(r["loaded"].cfg), "meta": r["meta"],
                                           "summary": r["summary"]} for r in rows])
     return 0
 

@@ -47,7 +47,7 @@ import torch
 
 from common.motion.mirror import MIRROR_SUFFIX
 from common.tasks.base import TaskConfig
-from learner.evaluation import eval_core
+from learner.evaluation import harness
 from learner import checkpoint
 
 PHC_THRESHOLD_M = 0.5
@@ -379,7 +379,7 @@ def _init_worker(state_file: str, clips: list[EvalClip], perturbation: Perturbat
     if cfg_json:  # the parent's config, with any `--set` in it
         loaded = dataclasses.replace(loaded, cfg=RunConfig.from_json(cfg_json))
     env = make_eval_env(loaded, clips, perturbation)
-    policy = eval_core.ZeroPolicy(env.act_dim) if zero_action else checkpoint.make_policy(loaded, env.obs_dim, env.act_dim)
+    policy = harness.ZeroPolicy(env.act_dim) if zero_action else checkpoint.make_policy(loaded, env.obs_dim, env.act_dim)
     _WORKER.update(env=env, policy=policy,
                    rule=loaded.cfg.task.executor.termination, perturbation=perturbation)
 
@@ -406,12 +406,12 @@ def evaluate(loaded: checkpoint.Loaded, clips: list[EvalClip], starts: int, work
     """One episode per (clip, start) (`episode_jobs`), each record tagged with its clip's label
     and split, in job order. `durations` (clip time, s) fixes the start frames; by default they
     are read from an environment at normal speed, so every perturbation row starts the same frames.
-    `zero_action`: act with zeros instead of the checkpoint's policy (`eval_core.ZeroPolicy`)."""
+    `zero_action`: act with zeros instead of the checkpoint's policy (`harness.ZeroPolicy`)."""
     if durations is None:
         durations = clip_durations(make_eval_env(loaded, clips), clips)
     jobs = episode_jobs(clips, durations, starts)
     init = (str(loaded.path), list(clips), perturbation, zero_action, loaded.cfg.to_json())
-    results = eval_core.run_jobs(_init_worker, init, _work, jobs, workers, progress)
+    results = harness.run_jobs(_init_worker, init, _work, jobs, workers, progress)
     by_id = {c.clip_id: c for c in clips}
     for r in results:
         r["label"], r["split"] = by_id[r["clip_id"]].label, by_id[r["clip_id"]].split

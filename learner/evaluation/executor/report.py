@@ -35,7 +35,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from learner.evaluation import cli_args, eval_core
+from learner.evaluation import cli_args, harness
 from learner import checkpoint
 
 from learner.evaluation.shape import plots as eval_plots
@@ -268,7 +268,7 @@ def main(argv: list[str]) -> int:
     loaded = checkpoint.load_trained(args.checkpoint)
     if loaded.cfg.task.name != "executor":
         p.error(f"--checkpoint {args.checkpoint}: task {loaded.cfg.task.name!r} is not the executor; "
-                f"{', '.join(eval_core.EXECUTOR_ONLY_OPTIONS)} are executor options")
+                f"{', '.join(harness.EXECUTOR_ONLY_OPTIONS)} are executor options")
     try:
         loaded = xe.with_settings(loaded, args.settings)
     except ValueError as exc:

@@ -54,7 +54,8 @@ from typing import Any
 
 import numpy as np
 
-from learner.evaluation import cli_args, eval_core
+from learner.evaluation import cli_args, harness
+from learner.evaluation.shape import episodes
 from learner import checkpoint
 
 from learner.evaluation.executor import evaluate as xe
@@ -214,7 +215,7 @@ _SHAPE: dict[str, Any] = {}
 
 
 def _shape_task(cfg, episode_s: float, speed: float):
-    task = eval_core.eval_task(cfg, episode_s)
+    task = harness.eval_task(cfg, episode_s)
     if speed != 1.0:
         lo, hi = task.imitate.speed_range
         task = dataclasses.replace(task, imitate=dataclasses.replace(task.imitate, speed_range=(min(lo, speed), max(hi, speed))))
@@ -239,7 +240,7 @@ def _shape_work(job: tuple[int, np.ndarray, int]) -> dict[str, Any]:
     env, pert = _SHAPE["env"], _SHAPE["pert"]
     if pert.speed != 1.0:
         params[list(env.space.names).index("speed")] = pert.speed
-    r = eval_core.run_episode(env, _SHAPE["policy"], params, seed)
+    r = episodes.run_episode(env, _SHAPE["policy"], params, seed)
     return {"index": i, "return": r["return"], "fell": r["fell"] or r["diverged"], "steps": r["steps"]}
 
 
@@ -248,8 +249,8 @@ def shape_rows(loaded: checkpoint.Loaded, shapes: int, episode_s: float, seed: i
     """(the unperturbed row, one result per row) for a shape controller on `shapes` random shapes."""
     from common.tasks.registry import task_space
 
-    space = task_space(eval_core.eval_task(loaded.cfg.task, episode_s))
-    params = eval_core.eval_shapes(space, shapes, seed)
+    space = task_space(harness.eval_task(loaded.cfg.task, episode_s))
+    params = episodes.eval_shapes(space, shapes, seed)
     if "speed" in space.names:  # the unperturbed episodes play at normal speed; rows set their own
         params[:, list(space.names).index("speed")] = 1.0
     planned = max(1, int(round(episode_s * loaded.cfg.task.control_hz)))
@@ -258,7 +259,7 @@ def shape_rows(loaded: checkpoint.Loaded, shapes: int, episode_s: float, seed: i
     def measure(name: str, pert: xe.Perturbation) -> dict[str, Any]:
         t0 = time.monotonic()
         init = (str(loaded.path), episode_s, pert)
-        res = eval_core.run_jobs(_init_shape, init, _shape_work, jobs, workers)
+        res = harness.run_jobs(_init_shape, init, _shape_work, jobs, workers)
         perf = float(np.mean([r["return"] / planned for r in res]))
         return {"row": name, "performance": perf, "success_pct": 100.0 * float(np.mean([not r["fell"] for r in res])),
                 "mean_return": float(np.mean([r["return"] for r in res])), "seconds": time.monotonic() - t0,

@@ -27,7 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from learner.evaluation import cli_args, eval_core
+from learner.evaluation import cli_args, harness
+from learner.evaluation.shape import episodes
 from learner import checkpoint
 
 from learner.evaluation.shape import plots as eval_plots
@@ -74,7 +75,7 @@ def run_morph(loaded: checkpoint.Loaded, schedule=None, strength: float = 1.0, e
         raise SystemExit(f"no default morph schedule for parameterization {loaded.cfg.task.body.parameterization!r}; "
                          f"pass --schedule")
     seconds = float(schedule[-1][0])
-    env = make_env(eval_core.eval_task(loaded.cfg.task, seconds), seed=0)
+    env = make_env(harness.eval_task(loaded.cfg.task, seconds), seed=0)
     policy = checkpoint.make_policy(loaded, env.obs_dim, env.act_dim)
     n_shape = env.n_shape
     params = env.space.default_array.copy()
@@ -90,7 +91,7 @@ def run_morph(loaded: checkpoint.Loaded, schedule=None, strength: float = 1.0, e
                 env.set_shape(target)
                 morphs[0] += 1
 
-    result = eval_core.run_episode(env, policy, params, seed, on_step=on_step)
+    result = episodes.run_episode(env, policy, params, seed, on_step=on_step)
     return {"fell": result["fell"], "seconds": result["seconds"], "planned_seconds": seconds, "morphs": morphs[0],
             "return": result["return"], "strength": strength, "schedule": schedule}
 

@@ -60,7 +60,7 @@ def test_evaluate_a_folder_of_npz_clips(run_dir: Path, tmp_path: Path) -> None:
 def test_zero_action_baseline_runs_the_same_episodes_without_the_policy(run_dir: Path, tmp_path: Path, capsys) -> None:
     import numpy as np
 
-    from learner.evaluation import eval_core, evaluate
+    from learner.evaluation import evaluate, harness
     from learner import checkpoint
 
     from learner.evaluation.executor import evaluate as xe
@@ -79,7 +79,7 @@ def test_zero_action_baseline_runs_the_same_episodes_without_the_policy(run_dir:
     loaded = checkpoint.load_trained(run_dir)
     clips = xe.resolve_clips(["humanoid3d_walk"], loaded.cfg.task)
     env = xe.make_eval_env(loaded, clips)
-    by_hand = xe.run_episode(env, eval_core.ZeroPolicy(env.act_dim), "humanoid3d_walk", zero["episodes"][1]["start_s"],
+    by_hand = xe.run_episode(env, harness.ZeroPolicy(env.act_dim), "humanoid3d_walk", zero["episodes"][1]["start_s"],
                              loaded.cfg.task.executor.termination, seed=1)
     assert by_hand["return"] == pytest.approx(zero["episodes"][1]["return"])
     assert not np.isclose(zero["episodes"][1]["return"], policy["episodes"][1]["return"])
@@ -152,7 +152,7 @@ def test_executor_options_on_a_shape_checkpoint_are_a_usage_error_naming_them(op
     from learner.evaluation import evaluate
 
     with pytest.raises(SystemExit) as exc:
-        evaluate.main(["--checkpoint", str(Path(__file__).resolve().parents[3] / "learner/pretrained/fish"), *option])
+        evaluate.main(["--checkpoint", str(Path(__file__).resolve().parents[4] / "learner/pretrained/fish"), *option])
     assert exc.value.code == 2
     assert ("task 'fish' is not the executor; --clips, --starts, --zero-action, --set are executor options"
             in capsys.readouterr().err)

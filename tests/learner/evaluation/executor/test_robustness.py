@@ -94,7 +94,7 @@ def test_options_of_the_other_kind_of_checkpoint_are_refused(tmp_path: Path, cap
     with pytest.raises(SystemExit) as exc:
         robustness.main(["--checkpoint", str(run), "--shapes", "5"])
     assert exc.value.code == 2 and "--shapes: not options for task 'executor'" in capsys.readouterr().err
-    fish = Path(__file__).resolve().parents[3] / "learner/pretrained/fish"
+    fish = Path(__file__).resolve().parents[4] / "learner/pretrained/fish"
     with pytest.raises(SystemExit) as exc:
         robustness.main(["--checkpoint", str(fish), "--set", "ankle_armature=0.1"])
     assert exc.value.code == 2 and "--set: not options for task 'fish'" in capsys.readouterr().err
