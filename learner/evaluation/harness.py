@@ -68,32 +68,6 @@ def run_jobs(init: Callable, init_args: tuple, work: Callable[[Any], dict], jobs
     return sorted(results, key=lambda r: r["index"])
 
 
-EXECUTOR_ONLY_OPTIONS = ("--clips", "--starts", "--zero-action", "--set")
-"""Options only the motion executor's evaluation commands take."""
-
-
-def names_executor(argv: list[str], checkpoint_option: str) -> bool:
-    """Whether an evaluation command's arguments are for a motion executor: they use an
-    executor-only option, or the (first) checkpoint given by `checkpoint_option` is one. A
-    checkpoint that cannot be loaded answers False (the shape command then reports it)."""
-    if any(a.split("=", 1)[0] in EXECUTOR_ONLY_OPTIONS for a in argv):
-        return True
-    import argparse
-
-    from learner import checkpoint
-
-    pre = argparse.ArgumentParser(add_help=False)
-    pre.add_argument(checkpoint_option, nargs="+", default=[])
-    known, _ = pre.parse_known_args(argv)
-    paths = getattr(known, checkpoint_option.lstrip("-").replace("-", "_"))
-    if not paths:
-        return False
-    try:
-        return checkpoint.load_trained(paths[0]).cfg.task.name == "executor"
-    except SystemExit:
-        return False
-
-
 def write_ablation(out: Path, text: str, arms: list[dict[str, Any]]) -> None:
     """An ablation command's outputs: the markdown table `out/ablation.md`, one JSON entry per
     arm in `out/ablation.json`, and the table printed."""

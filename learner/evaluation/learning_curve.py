@@ -31,7 +31,7 @@ import numpy as np  # noqa: E402
 
 from learner import checkpoint
 
-from learner.evaluation import cli_args, harness  # noqa: E402
+from learner.evaluation import cli_args, harness, registry  # noqa: E402
 from learner.evaluation.shape import episodes
 
 from learner.evaluation.executor import curve as executor_curve
@@ -63,7 +63,7 @@ def main(argv: list[str]) -> int:
     if not ckpts:
         raise SystemExit(f"--ckpt-dir {args.ckpt_dir}: no checkpoints")
     newest = checkpoint.load_trained(ckpts[-1])  # the run's task decides which curve
-    executor = newest.cfg.task.name == "executor"
+    executor = registry.family_of(newest.cfg.task.name, "learning-curve") == "executor"
     kind_flags = {"--shapes": args.shapes, "--episode-s": args.episode_s, "--seed": args.seed, "--box-scale": args.box_scale}
     if executor:
         misplaced = [flag for flag, value in kind_flags.items() if value is not None]

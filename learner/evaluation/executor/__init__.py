@@ -1,0 +1,6 @@
+"""The motion executor's evaluation (UniCon): success per clip over the train and test splits."""
+
+from learner.evaluation.registry import Evaluator
+
+EVALUATOR = Evaluator(evaluate="learner.evaluation.executor.report:main",
+                      ablation="learner.evaluation.executor.ablation:main")

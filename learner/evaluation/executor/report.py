@@ -1,5 +1,5 @@
 """`morphmimic evaluate --checkpoint X` on a UniCon motion executor checkpoint (task "executor";
-`learner/evaluation/evaluate.py` hands such checkpoints here): success per clip over the train and test
+`morphmimic evaluate` hands such checkpoints here): success per clip over the train and test
 split (METHOD.md B "Evaluation"), with files and pictures.
 
     morphmimic evaluate --checkpoint runs/executor                       # every humanoid clip, 10 starts each
@@ -35,7 +35,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from learner.evaluation import cli_args, harness
+from learner.evaluation import cli_args
 from learner import checkpoint
 
 from learner.evaluation.shape import plots as eval_plots
@@ -262,13 +262,17 @@ def line(name: str, group: str, s: dict) -> str:
             f"{s['clips']} clips x {s['episodes'] // max(s['clips'], 1)} starts")
 
 
+EXECUTOR_ONLY_OPTIONS = ("--clips", "--starts", "--zero-action", "--set")
+"""Options only the motion executor's evaluation takes."""
+
+
 def main(argv: list[str]) -> int:
     p = parser()
     args = p.parse_args(argv)
     loaded = checkpoint.load_trained(args.checkpoint)
     if loaded.cfg.task.name != "executor":
         p.error(f"--checkpoint {args.checkpoint}: task {loaded.cfg.task.name!r} is not the executor; "
-                f"{', '.join(harness.EXECUTOR_ONLY_OPTIONS)} are executor options")
+                f"{', '.join(EXECUTOR_ONLY_OPTIONS)} are executor options")
     try:
         loaded = xe.with_settings(loaded, args.settings)
     except ValueError as exc:

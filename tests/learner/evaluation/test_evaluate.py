@@ -259,7 +259,7 @@ def test_ablation_says_whether_the_papers_two_effects_reproduce(norm_falls, nono
                                                                 says) -> None:
     from types import SimpleNamespace
 
-    from learner.evaluation import ablation
+    from learner.evaluation.shape import ablation
 
     def row(preset: str, falls: float, uniformity: float) -> dict:
         return {"loaded": SimpleNamespace(cfg=PRESETS[preset][1]),
@@ -280,7 +280,7 @@ def test_ablation_says_whether_the_papers_two_effects_reproduce(norm_falls, nono
 def test_normalizations_effect_on_task_achievement_is_relative_and_the_paper_rule_says_no_task_rule() -> None:
     from types import SimpleNamespace
 
-    from learner.evaluation import ablation
+    from learner.evaluation.shape import ablation
 
     def row(preset: str, achievement: float, rule: str) -> dict:
         return {"loaded": SimpleNamespace(cfg=PRESETS[preset][1]), "meta": {"fall_rule": rule},
@@ -299,7 +299,7 @@ def test_normalizations_effect_on_task_achievement_is_relative_and_the_paper_rul
 def test_a_map_that_is_more_even_only_in_its_worst_cell_is_called_so() -> None:
     from types import SimpleNamespace
 
-    from learner.evaluation import ablation
+    from learner.evaluation.shape import ablation
 
     def row(preset: str, uniformity: float, returns: list[float]) -> dict:
         return {"loaded": SimpleNamespace(cfg=PRESETS[preset][1]), "shapes": [{"return": x} for x in returns],
@@ -358,7 +358,7 @@ def test_ablation_last_n_takes_each_runs_newest_checkpoints_as_one_arm(tmp_path:
 def test_an_arms_mean_row_averages_its_checkpoints_and_says_whether_arms_are_apart() -> None:
     from types import SimpleNamespace
 
-    from learner.evaluation import ablation
+    from learner.evaluation.shape import ablation
 
     def row(preset: str, it: int, falls: float) -> dict:
         return {"loaded": SimpleNamespace(cfg=PRESETS[preset][1]), "shapes": [{"return": 1.0}, {"return": 3.0}],
@@ -403,7 +403,7 @@ def test_evaluate_morph_forwards_the_strength_and_refuses_it_alone(tmp_path: Pat
 
 def test_bad_map_params_fail_before_any_episode_and_a_render_failure_keeps_the_results(tmp_path: Path,
                                                                                       monkeypatch) -> None:
-    from learner.evaluation import evaluate
+    from learner.evaluation.shape import evaluate
     from learner.evaluation.shape import episodes
 
     _tiny_checkpoint(tmp_path, "tiny")
@@ -525,7 +525,7 @@ def test_the_papers_fall_rule_can_end_the_episodes() -> None:
                                         ("fish", "no fall-down figure for this character (`fish`)"),
                                         ("biped", "no fall-down figure for this character (`biped`)")])
 def test_the_summary_sets_beside_a_character_only_the_papers_figure_for_it(task, says):
-    from learner.evaluation.evaluate import paper_line
+    from learner.evaluation.shape.evaluate import paper_line
 
     line = paper_line(task)
     assert says in line and "not comparable" in line
