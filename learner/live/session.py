@@ -28,7 +28,7 @@ import torch
 
 from common.characters.mass import scale_body_mass
 from learner.evaluation import harness
-from learner import checkpoint
+from learner.checkpoint import Loaded, load_trained, make_policy
 
 AGENTS = ("policy", "zero", "random")
 """Who acts: the checkpoint's policy (mean action), zero actions, or uniform random actions."""
@@ -58,7 +58,7 @@ def finite_number(value: Any, what: str, allowed: str) -> float:
     return v
 
 
-def live_task(loaded: checkpoint.Loaded, clip: str | None = None, episode_s: float = 3600.0):
+def live_task(loaded: Loaded, clip: str | None = None, episode_s: float = 3600.0):
     """The checkpoint's task as a live session runs it: long episodes; for the executor, every
     humanoid clip trackable, rescheduled at a clip's end, projectiles in the scene, no reactive
     initialization and no termination (the session reads the checkpoint's own rule off the
@@ -81,14 +81,14 @@ class LiveSession:
 
         if agent not in AGENTS:
             raise ValueError(f"agent {agent!r} is not one of {', '.join(AGENTS)}")
-        self.loaded = checkpoint.load_trained(checkpoint)
+        self.loaded = load_trained(checkpoint)
         self.kind = "executor" if self.loaded.cfg.task.name == "executor" else "shape"
         self.clips = [c for c, _ in task_clips(live_task(self.loaded))]
         """The clips this checkpoint can follow: every humanoid clip (the executor) or its own task's."""
         if clip and clip not in self.clips:
             raise ValueError(f"clip {clip!r} cannot play with this checkpoint; choose from: {', '.join(self.clips)}")
         self.env = make_env(live_task(self.loaded, clip), seed=seed)
-        self.policy = checkpoint.make_policy(self.loaded, self.env.obs_dim, self.env.act_dim)
+        self.policy = make_policy(self.loaded, self.env.obs_dim, self.env.act_dim)
         self.agent, self.auto_reset = agent, auto_reset
         self.rng = np.random.default_rng(seed)
         self.seed = seed

@@ -4,3 +4,6 @@ from learner.evaluation.registry import Evaluator
 
 EVALUATOR = Evaluator(evaluate="learner.evaluation.executor.report:main",
                       ablation="learner.evaluation.executor.ablation:main")
+
+EXECUTOR_ONLY_OPTIONS = ("--clips", "--starts", "--zero-action", "--set")
+"""Options only the motion executor's evaluation takes."""

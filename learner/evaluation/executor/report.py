@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Any
 
 from learner.evaluation import cli_args
+from learner.evaluation.executor import EXECUTOR_ONLY_OPTIONS
 from learner import checkpoint
 
 from learner.evaluation.shape import plots as eval_plots
@@ -260,10 +261,6 @@ def line(name: str, group: str, s: dict) -> str:
             f"PHC {_f(s['phc_success_pct'])}%), "
             f"MPJPE {_f(s['mpjpe_mm'])} mm, reward/step {_f(s['reward_per_step'], '.3f')}, "
             f"{s['clips']} clips x {s['episodes'] // max(s['clips'], 1)} starts")
-
-
-EXECUTOR_ONLY_OPTIONS = ("--clips", "--starts", "--zero-action", "--set")
-"""Options only the motion executor's evaluation takes."""
 
 
 def main(argv: list[str]) -> int:

@@ -33,6 +33,8 @@ import numpy as np
 
 from common.motion.root_height import ROOT_HEIGHT_RULES
 from learner.evaluation import cli_args, harness
+from learner.evaluation.executor import EXECUTOR_ONLY_OPTIONS
+from learner.evaluation.registry import first_value
 from learner.evaluation.shape import episodes
 from learner import checkpoint
 from learner.evaluation.shape import plots as eval_plots
@@ -180,6 +182,12 @@ _NOT_MORPH = ("shapes", "seed", "episode_s", "workers", "box_scale", "map_params
 
 
 def main(argv: list[str]) -> int:
+    if any(a.split("=", 1)[0] in EXECUTOR_ONLY_OPTIONS for a in argv):  # named for what they are, not "unrecognized"
+        path = first_value(argv, "--checkpoint")
+        task = checkpoint.load_trained(path).cfg.task.name if path is not None else "?"
+        print(f"morphmimic evaluate: --checkpoint {path}: task {task!r} is not the executor; "
+              f"{', '.join(EXECUTOR_ONLY_OPTIONS)} are executor options", file=sys.stderr)
+        raise SystemExit(2)
     args = parse(argv)
     if args.morph:
         from learner.evaluation.shape import morph_demo
