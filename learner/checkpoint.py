@@ -1,4 +1,6 @@
-"""Checkpoints: `runs/<name>/ckpt/<iteration>/state.pt`, written atomically, last N kept.
+"""Checkpoints: `runs/<name>/ckpt/<iteration>/state.pt`, written atomically, last N kept, and
+read back either as raw state (`load`, resuming training) or as a trained policy ready to run
+(`load_trained`, `make_policy`: evaluation, live play, distillation).
 
 A checkpoint holds tensors and primitives only, so `torch.load(path, weights_only=True)`
 loads it. Atomicity: the file is written and fsynced inside a temporary directory that is
@@ -11,11 +13,15 @@ from __future__ import annotations
 import logging
 import os
 import shutil
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
+
+from common.policy import GaussianPolicy
+from learner.config import RunConfig
 
 log = logging.getLogger(__name__)
 
@@ -99,3 +105,65 @@ def load_latest(ckpt_dir: Path) -> tuple[Path, dict[str, Any]] | None:
         except CheckpointError as exc:
             log.error("%s; falling back to the previous checkpoint", exc)
     return None
+
+
+@dataclass(frozen=True)
+class Loaded:
+    """A checkpoint ready to run: its resolved run config, the raw state and where it came from."""
+
+    cfg: RunConfig
+    state: dict[str, Any]
+    path: Path
+
+    @property
+    def name(self) -> str:
+        return self.cfg.name
+
+
+def resolve(path: str | Path) -> Path:
+    """A checkpoint directory (with state.pt), a state.pt file, a run directory (its newest
+    `ckpt/<it>/`) or a shipped `learner/pretrained/<name>` -> the state.pt file."""
+    p = Path(path)
+    if p.is_file():
+        return p
+    if (p / FILE).is_file():
+        return p / FILE
+    found = list_checkpoints(p / "ckpt")
+    if found:
+        return found[-1] / FILE
+    raise SystemExit(f"--checkpoint {path}: no state.pt there, nor a run directory with ckpt/<iteration>/state.pt")
+
+
+def load_trained(path: str | Path) -> Loaded:
+    """The checkpoint `resolve(path)` finds, with its saved configuration checked; SystemExit
+    with one line naming the file when it is unreadable, not a training checkpoint, or its
+    configuration is refused."""
+    file = resolve(path)
+    try:
+        state = load(file)
+    except CheckpointError as exc:
+        raise SystemExit(str(exc)) from None
+    if "config" not in state or "policy" not in state:
+        raise SystemExit(f"{file} holds no 'config'/'policy': not a morphmimic training checkpoint")
+    try:
+        cfg = RunConfig.from_json(str(state["config"]))
+        if cfg.task.name == "executor":  # its named clips must play on the humanoid
+            from common.tasks.executor.env import labelled_clips
+
+            labelled_clips(cfg.task)
+    except ValueError as exc:
+        raise SystemExit(f"{file}: its saved configuration is refused: {exc}") from None
+    return Loaded(cfg, state, file)
+
+
+def make_policy(loaded: Loaded, obs_dim: int, act_dim: int) -> GaussianPolicy:
+    """The checkpoint's policy for an env of these sizes, in eval mode; SystemExit naming the
+    file when its weights do not fit."""
+    policy = GaussianPolicy(obs_dim, act_dim, loaded.cfg.policy)
+    try:
+        policy.load_state_dict(loaded.state["policy"])
+    except (RuntimeError, TypeError, AttributeError) as exc:  # wrong shapes or keys; not a state dict at all
+        raise SystemExit(f"{loaded.path}: the policy does not fit task {loaded.cfg.task.name!r} as this code builds it "
+                         f"(obs {obs_dim}, act {act_dim}): {exc}") from None
+    policy.eval()
+    return policy

@@ -86,13 +86,11 @@ class TorqueLabeler:
 
 
 def load_teacher(teacher_dir: str | Path):
-    """The PD executor checkpoint at `teacher_dir` (`eval_core.Loaded`); ValueError naming it if
+    """The PD executor checkpoint at `teacher_dir` (`checkpoint.Loaded`); ValueError naming it if
     it is missing, unreadable, or not a PD executor."""
-    from learner.evaluation import eval_core
-
     try:
-        loaded = eval_core.load(teacher_dir)
-    except SystemExit as exc:  # eval_core's one-line message for a missing or unreadable checkpoint
+        loaded = checkpoint.load_trained(teacher_dir)
+    except SystemExit as exc:  # load_trained's one-line message for a missing or unreadable checkpoint
         raise ValueError(f"--teacher {teacher_dir}: {str(exc.code).replace('--checkpoint ', '')}") from None
     task = loaded.cfg.task
     if task.name != "executor" or task.executor.actuation != "pd":
@@ -107,7 +105,6 @@ def distill(loaded, out: str | Path, rounds: int = 6, steps_per_round: int = 20_
     checkpoint at `out` (`out/ckpt/<iteration>/state.pt`); returns the checkpoint directory."""
     from common.policy import anneal_log_std
     from common.tasks.executor.env import ExecutorEnv
-    from learner.evaluation import eval_core
     from learner.learner import Learner
 
     cfg = loaded.cfg
@@ -117,7 +114,7 @@ def distill(loaded, out: str | Path, rounds: int = 6, steps_per_round: int = 20_
     env = ExecutorEnv(student_task, seed=seed)
     pd_model = ExecutorEnv(cfg.task, seed=seed).model
     labeler = TorqueLabeler(env, pd_model, cfg.task.executor.pd_action_scale)
-    teacher = eval_core.make_policy(loaded, env.obs_dim, env.act_dim)
+    teacher = checkpoint.make_policy(loaded, env.obs_dim, env.act_dim)
     learner = Learner(student_cfg)  # seeds torch with `seed`: the student's initial weights
     student = learner.policy
     student.normalizer.load_state_dict(teacher.normalizer.state_dict())

@@ -1,27 +1,48 @@
-"""One registry of tasks: `make_env(cfg, seed)` and `task_space(cfg)` by task name."""
+"""One registry of tasks: each task's environment class, family and the commands that take its
+checkpoints (`TASKS`), and `make_env(cfg, seed)`, `task_space(cfg)` by task name."""
 
 from __future__ import annotations
 
 import importlib
+from dataclasses import dataclass
 
 from common.params import ParamSpace
 from common.tasks.base import Env, TaskConfig
 
-TASKS: dict[str, str] = {
-    "reach": "common.tasks.reach:ReachEnv",
-    "lower_biped": "common.tasks.shape.env:ImitateEnv",
-    "biped": "common.tasks.shape.env:ImitateEnv",
-    "quadruped": "common.tasks.shape.env:ImitateEnv",
-    "fish": "common.tasks.shape.env:ImitateEnv",
-    "manta": "common.tasks.shape.env:ImitateEnv",
-    "executor": "common.tasks.executor.env:ExecutorEnv",
+SHAPE_COMMANDS = ("train", "curriculum", "evaluate", "ablation", "learning-curve", "robustness", "play", "studio")
+EXECUTOR_COMMANDS = ("train", "distill", "evaluate", "ablation", "learning-curve", "robustness", "velocity-probe",
+                     "break-probe", "play", "studio")
+
+
+@dataclass(frozen=True)
+class TaskEntry:
+    """One registered task: where its environment class is, the family of tasks it belongs to
+    (tasks of one family share an evaluation: "reach", "shape", "executor") and the `morphmimic`
+    commands that take its checkpoints."""
+
+    env: str
+    """The environment class as `module:Class`."""
+    family: str
+    commands: tuple[str, ...]
+
+
+TASKS: dict[str, TaskEntry] = {
+    "reach": TaskEntry("common.tasks.reach:ReachEnv", "reach", ("train",)),
+    **{name: TaskEntry("common.tasks.shape.env:ImitateEnv", "shape", SHAPE_COMMANDS)
+       for name in ("lower_biped", "biped", "quadruped", "fish", "manta")},
+    "executor": TaskEntry("common.tasks.executor.env:ExecutorEnv", "executor", EXECUTOR_COMMANDS),
 }
 
 
-def _env_class(name: str) -> type:
+def task_entry(name: str) -> TaskEntry:
+    """The registered task `name`; ValueError naming it and the registered tasks otherwise."""
     if name not in TASKS:
         raise ValueError(f"unknown task {name!r}; registered tasks: {sorted(TASKS)}")
-    module, cls = TASKS[name].split(":")
+    return TASKS[name]
+
+
+def _env_class(name: str) -> type:
+    module, cls = task_entry(name).env.split(":")
     return getattr(importlib.import_module(module), cls)
 
 

@@ -8,7 +8,7 @@ import argparse
 import json
 import math
 
-from learner.evaluation.eval_core import check_box_scale
+from learner.evaluation.harness import check_box_scale
 
 
 def _number(text: str, kind: type, allowed: str) -> float:

@@ -20,9 +20,12 @@ earlier curve made with other settings is refused, not overwritten.
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import json
 import os
+import sys
+from dataclasses import dataclass
+from typing import ClassVar
 from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -31,55 +34,90 @@ import numpy as np  # noqa: E402
 
 from learner import checkpoint
 
-from learner.evaluation import cli_args, eval_core  # noqa: E402
+from common.config_limits import Limit, above, at_least, between, check_limits, validated  # noqa: E402
+from learner.cli_options import parse_options  # noqa: E402
+from learner.evaluation import harness, registry  # noqa: E402
+from learner.evaluation.shape import episodes
 
 from learner.evaluation.executor import curve as executor_curve
 
 
+SEED_LIMIT = 2**32
+"""Seeds are below this: torch's manual_seed overflows past 2^64, numpy's generators refuse negatives."""
+
+
+@validated
+@dataclass
+class CurveOptions:
+    ckpt_dir: str
+    """Directory of <iteration>/state.pt checkpoints."""
+    run_dir: str = ""
+    """The run directory (its config.json time is the start)."""
+    start: float = 0.0
+    """Training start, Unix time in seconds (overrides --run-dir; 0: not given)."""
+    shapes: int | None = None
+    """Shape controllers: random shapes (default 100)."""
+    episode_s: float | None = None
+    """Shape controllers: episode length, s (default 10)."""
+    seed: int | None = None
+    """Shape controllers: the shapes' seed, in [0, 2^32) (default 2019)."""
+    box_scale: float | None = None
+    """Shape controllers: shapes from the box shrunk toward the base shape (a curriculum's progress;
+    default 1: the whole box)."""
+    starts: int | None = None
+    """Executor: start frames per clip, as `morphmimic evaluate --starts` (default 10)."""
+    every: int = 1
+    """Evaluate every n-th checkpoint (the last always)."""
+    workers: int = 1
+    """Processes running episodes."""
+    target: float | None = None
+    """Report reaching this: fall-down % at most (shape controllers, default 20) or train success %
+    at least (executor, default 90)."""
+    out: str = ""
+    """Output directory (default: <ckpt-dir>/../curve)."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {
+        "start": at_least(0.0, integer=False), "shapes": at_least(1), "episode_s": above(0.0),
+        "seed": between(0, SEED_LIMIT, hi_open=True, integer=True), "box_scale": between(0.0, 1.0, lo_open=True),
+        "starts": at_least(1), "every": at_least(1), "workers": at_least(1), "target": between(0.0, 100.0)}
+    FLAG_PREFIX: ClassVar[str] = ""
+
+    def validate(self) -> None:
+        if self.seed is not None and not (isinstance(self.seed, int) and 0 <= self.seed < SEED_LIMIT):
+            raise ValueError(f"--seed = {self.seed!r} is not allowed: give an integer >= 0 and below 2^32")
+        check_limits(self)
+
+
+def _usage_error(text: str) -> None:
+    """One line `morphmimic learning-curve: text` on stderr and exit 2, as a bad option."""
+    print(f"morphmimic learning-curve: {text}", file=sys.stderr)
+    raise SystemExit(2)
+
+
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog="morphmimic learning-curve", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--ckpt-dir", required=True, help="directory of <iteration>/state.pt checkpoints")
-    p.add_argument("--run-dir", default="", help="the run directory (its config.json time is the start)")
-    p.add_argument("--start", type=cli_args.unix_time, default=0.0, help="training start, Unix time (overrides --run-dir)")
-    p.add_argument("--shapes", type=cli_args.positive_int, default=None, help="shape controllers: random shapes (default 100)")
-    p.add_argument("--episode-s", type=cli_args.positive_float, default=None,
-                   help="shape controllers: episode length, s (default 10)")
-    p.add_argument("--seed", type=cli_args.seed, default=None, help="shape controllers: the shapes' seed (default 2019)")
-    p.add_argument("--box-scale", type=cli_args.box_scale, default=None,
-                   help="shape controllers: shapes from the box shrunk toward the base shape (a curriculum's progress; "
-                        "default 1: the whole box)")
-    p.add_argument("--starts", type=cli_args.positive_int, default=None,
-                   help="executor: start frames per clip, as `morphmimic evaluate --starts` (default 10)")
-    p.add_argument("--every", type=cli_args.positive_int, default=1, help="evaluate every n-th checkpoint (the last always)")
-    p.add_argument("--workers", type=cli_args.positive_int, default=1)
-    p.add_argument("--target", type=cli_args.percent, default=None,
-                   help="report reaching this: fall-down %% at most (shape controllers, default 20) or train "
-                        "success %% at least (executor, default 90)")
-    p.add_argument("--out", default="", help="output directory (default: <ckpt-dir>/../curve)")
-    args = p.parse_args(argv)
+    args = parse_options(CurveOptions, argv, prog="morphmimic learning-curve", description=__doc__)
     ckpts = checkpoint.list_checkpoints(Path(args.ckpt_dir))
     if not ckpts:
         raise SystemExit(f"--ckpt-dir {args.ckpt_dir}: no checkpoints")
-    newest = eval_core.load(ckpts[-1])  # the run's task decides which curve
-    executor = newest.cfg.task.name == "executor"
+    newest = checkpoint.load_trained(ckpts[-1])  # the run's task decides which curve
+    executor = registry.family_of(newest.cfg.task.name, "learning-curve") == "executor"
     kind_flags = {"--shapes": args.shapes, "--episode-s": args.episode_s, "--seed": args.seed, "--box-scale": args.box_scale}
     if executor:
         misplaced = [flag for flag, value in kind_flags.items() if value is not None]
         if misplaced:
-            p.error(f"{', '.join(misplaced)}: options of a shape controller's curve; {newest.name} is an executor "
+            _usage_error(f"{', '.join(misplaced)}: options of a shape controller's curve; {newest.name} is an executor "
                     "run (its curve takes --starts)")
-        args.starts = args.starts or 10
-        args.target = executor_curve.DEFAULT_TARGET if args.target is None else args.target
+        args = dataclasses.replace(args, starts=args.starts or 10,
+                                   target=executor_curve.DEFAULT_TARGET if args.target is None else args.target)
         proto = executor_curve.protocol(newest, args.starts)
     else:
         if args.starts is not None:
-            p.error(f"--starts: an option of an executor's curve; {newest.name} is a {newest.cfg.task.name} run "
+            _usage_error(f"--starts: an option of an executor's curve; {newest.name} is a {newest.cfg.task.name} run "
                     "(its curve takes --shapes, --episode-s, --box-scale)")
-        args.shapes, args.episode_s = args.shapes or 100, args.episode_s or 10.0
-        args.seed = 2019 if args.seed is None else args.seed
-        args.box_scale = 1.0 if args.box_scale is None else args.box_scale
-        args.target = 20.0 if args.target is None else args.target
+        args = dataclasses.replace(args, shapes=args.shapes or 100, episode_s=args.episode_s or 10.0,
+                                   seed=2019 if args.seed is None else args.seed,
+                                   box_scale=1.0 if args.box_scale is None else args.box_scale,
+                                   target=20.0 if args.target is None else args.target)
         proto = {k: getattr(args, k) for k in PROTOCOL}
     ckpts = every_nth(ckpts, args.every)
     start = args.start or (os.path.getmtime(Path(args.run_dir) / "config.json") if args.run_dir else 0.0)
@@ -95,7 +133,7 @@ def main(argv: list[str]) -> int:
     for c in ckpts:
         if int(c.name) in done:  # checkpoint directories are named by iteration: skip without loading
             continue
-        loaded = eval_core.load(c)
+        loaded = checkpoint.load_trained(c)
         if loaded.cfg.task.name != newest.cfg.task.name:
             raise SystemExit(f"{loaded.path}: task {loaded.cfg.task.name!r}, but the newest checkpoint in --ckpt-dir "
                              f"is {newest.cfg.task.name!r}: one curve is one run")
@@ -129,14 +167,14 @@ def main(argv: list[str]) -> int:
     return 0
 
 
-def _shape_figures(loaded: eval_core.Loaded, args: argparse.Namespace) -> dict:
-    """A shape controller's figures on the curve's random shapes (`eval_core.summarize`)."""
+def _shape_figures(loaded: checkpoint.Loaded, args: CurveOptions) -> dict:
+    """A shape controller's figures on the curve's random shapes (`episodes.summarize`)."""
     from common.tasks.registry import make_env
 
-    env = make_env(eval_core.eval_task(loaded.cfg.task, args.episode_s, args.box_scale), seed=0)
-    shapes = eval_core.eval_shapes(env.space, args.shapes, args.seed)
-    res = eval_core.evaluate(loaded, shapes, args.episode_s, args.seed, args.workers, box_scale=args.box_scale)
-    return eval_core.summarize(res, env.space, getattr(env, "n_shape", env.space.dim))
+    env = make_env(harness.eval_task(loaded.cfg.task, args.episode_s, args.box_scale), seed=0)
+    shapes = episodes.eval_shapes(env.space, args.shapes, args.seed)
+    res = episodes.evaluate(loaded, shapes, args.episode_s, args.seed, args.workers, box_scale=args.box_scale)
+    return episodes.summarize(res, env.space, getattr(env, "n_shape", env.space.dim))
 
 
 def _write(path: Path, header: dict, rows: dict[int, dict]) -> None:
@@ -186,7 +224,7 @@ def every_nth(ckpts: list[Path], n: int) -> list[Path]:
 
 
 # Version of the extreme-10% column: "base" since it ranks shapes by their distance from the base
-# shape (`eval_core.extremeness`); curves written before then ranked them from the box centre.
+# shape (`episodes.extremeness`); curves written before then ranked them from the box centre.
 EXTREME = "base"
 PROTOCOL = ("shapes", "episode_s", "seed", "box_scale")
 
@@ -268,6 +306,4 @@ def _plot(rows: list[dict], path: Path, args) -> None:
 
 
 if __name__ == "__main__":
-    import sys
-
     raise SystemExit(main(sys.argv[1:]))

@@ -27,7 +27,8 @@ import numpy as np
 import torch
 
 from common.characters.mass import scale_body_mass
-from learner.evaluation import eval_core
+from learner.evaluation import harness
+from learner.checkpoint import Loaded, load_trained, make_policy
 
 AGENTS = ("policy", "zero", "random")
 """Who acts: the checkpoint's policy (mean action), zero actions, or uniform random actions."""
@@ -57,7 +58,7 @@ def finite_number(value: Any, what: str, allowed: str) -> float:
     return v
 
 
-def live_task(loaded: eval_core.Loaded, clip: str | None = None, episode_s: float = 3600.0):
+def live_task(loaded: Loaded, clip: str | None = None, episode_s: float = 3600.0):
     """The checkpoint's task as a live session runs it: long episodes; for the executor, every
     humanoid clip trackable, rescheduled at a clip's end, projectiles in the scene, no reactive
     initialization and no termination (the session reads the checkpoint's own rule off the
@@ -68,7 +69,7 @@ def live_task(loaded: eval_core.Loaded, clip: str | None = None, episode_s: floa
                                  reactive_init=False, on_frame_share=0.0, catch_up_steps=0, termination="none",
                                  projectile=True)
         return dataclasses.replace(cfg, episode_s=episode_s, executor=ex)
-    return dataclasses.replace(eval_core.eval_task(cfg, episode_s), **({"clip_id": clip} if clip else {}))
+    return dataclasses.replace(harness.eval_task(cfg, episode_s), **({"clip_id": clip} if clip else {}))
 
 
 class LiveSession:
@@ -80,14 +81,14 @@ class LiveSession:
 
         if agent not in AGENTS:
             raise ValueError(f"agent {agent!r} is not one of {', '.join(AGENTS)}")
-        self.loaded = eval_core.load(checkpoint)
+        self.loaded = load_trained(checkpoint)
         self.kind = "executor" if self.loaded.cfg.task.name == "executor" else "shape"
         self.clips = [c for c, _ in task_clips(live_task(self.loaded))]
         """The clips this checkpoint can follow: every humanoid clip (the executor) or its own task's."""
         if clip and clip not in self.clips:
             raise ValueError(f"clip {clip!r} cannot play with this checkpoint; choose from: {', '.join(self.clips)}")
         self.env = make_env(live_task(self.loaded, clip), seed=seed)
-        self.policy = eval_core.make_policy(self.loaded, self.env.obs_dim, self.env.act_dim)
+        self.policy = make_policy(self.loaded, self.env.obs_dim, self.env.act_dim)
         self.agent, self.auto_reset = agent, auto_reset
         self.rng = np.random.default_rng(seed)
         self.seed = seed

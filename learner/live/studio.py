@@ -440,7 +440,7 @@ def main(argv: list[str]) -> int:
     torch.set_num_threads(1)  # NOTE: one small MLP per step: more threads only fight the server's
     try:
         studio = Studio(args.checkpoint, host=args.host, port=args.port, agent=args.agent, clip=args.clip, seed=args.seed)
-    except (ValueError, FileNotFoundError, SystemExit) as exc:  # NOTE: eval_core.load exits with a message on a bad checkpoint
+    except (ValueError, FileNotFoundError, SystemExit) as exc:  # NOTE: checkpoint.load_trained exits with a message on a bad checkpoint
         print(f"morphmimic studio: {exc}", file=sys.stderr)
         return 2
     studio.start()

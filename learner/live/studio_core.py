@@ -369,7 +369,7 @@ class StudioCore:
         def work() -> None:
             try:
                 new = LiveSession(checkpoint, agent=agent, clip=clip, seed=self.seed)
-            except SystemExit as exc:  # NOTE: eval_core.load refuses a bad checkpoint with SystemExit(message)
+            except SystemExit as exc:  # NOTE: checkpoint.load_trained refuses a bad checkpoint with SystemExit(message)
                 self.loading = None
                 self.submit("load", _raiser(ValueError(str(exc))))
                 return

@@ -22,7 +22,8 @@ import json
 import sys
 from pathlib import Path
 
-from learner.evaluation import cli_args, eval_core
+from learner.evaluation import cli_args, harness
+from learner import checkpoint
 
 from learner.evaluation.executor import evaluate as xe
 
@@ -54,7 +55,7 @@ def settings(cfg) -> str:
 
 def evaluate_arm(ckpt: str, out: Path, folder: str, p: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
     """Evaluate one arm into `<out>/<folder>`, or reuse a matching results.json there."""
-    loaded = eval_core.load(ckpt)
+    loaded = checkpoint.load_trained(ckpt)
     if loaded.cfg.task.name != "executor":
         p.error(f"--checkpoints {ckpt}: task {loaded.cfg.task.name!r} is not the executor; compare executor "
                 "checkpoints with executor checkpoints")
@@ -94,7 +95,7 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def _folders(loaded: list[eval_core.Loaded]) -> list[str]:
+def _folders(loaded: list[checkpoint.Loaded]) -> list[str]:
     names = [x.name for x in loaded]
     return [f"{x.name}-{int(x.state.get('iteration', 0))}" if names.count(x.name) > 1 else x.name for x in loaded]
 
@@ -111,7 +112,7 @@ def main(argv: list[str]) -> int:
     args = p.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    loaded = [eval_core.load(c) for c in args.checkpoints]
+    loaded = [checkpoint.load_trained(c) for c in args.checkpoints]
     rows = [evaluate_arm(c, out, folder, p, args) for c, folder in zip(args.checkpoints, _folders(loaded))]
     first = rows[0]["summary"]["overall"]
     text = "\n".join([
@@ -128,7 +129,7 @@ def main(argv: list[str]) -> int:
         "objective is \"crucial to training\" (8.2) and, like reactive state initialization, is ablated only visually "
         "(the paper's video).", "",
     ])
-    eval_core.write_ablation(out, text, [{"name": r["meta"]["name"], "settings": settings(r["loaded"].cfg), "meta": r["meta"],
+    harness.write_ablation(out, text, [{"name": r["meta"]["name"], "settings": settings(r["loaded"].cfg), "meta": r["meta"],
                                           "summary": r["summary"]} for r in rows])
     return 0
 

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from learner.evaluation import eval_core
+from learner import checkpoint
 
 # The per-split figures a row keeps (executor_eval.stats keys).
 
@@ -25,13 +25,13 @@ FIELDS = ("success_pct", "pose_success_pct", "phc_success_pct", "mpjpe_mm", "tra
 DEFAULT_TARGET = 90.0  # the issue's goal: 90% of the train starts tracked to the end
 
 
-def protocol(loaded: eval_core.Loaded, starts: int) -> dict[str, Any]:
+def protocol(loaded: checkpoint.Loaded, starts: int) -> dict[str, Any]:
     """What a row of this curve depends on besides the checkpoint: the clips and the starts (the
     fields of curve.json that must match for its rows to be reused, `learning_curve._earlier_rows`)."""
     return {"task": "executor", "starts": starts, "clips": [c.clip_id for c in xe.default_clips(loaded.cfg.task)]}
 
 
-def measure(loaded: eval_core.Loaded, starts: int, workers: int) -> dict[str, Any]:
+def measure(loaded: checkpoint.Loaded, starts: int, workers: int) -> dict[str, Any]:
     """One checkpoint's figures: per split (train, test, ...) and overall, `FIELDS` each."""
     clips = xe.default_clips(loaded.cfg.task)
     summary = xe.summarize(xe.evaluate(loaded, clips, starts, workers), clips)

@@ -47,7 +47,8 @@ import torch
 
 from common.motion.mirror import MIRROR_SUFFIX
 from common.tasks.base import TaskConfig
-from learner.evaluation import eval_core
+from learner.evaluation import harness
+from learner import checkpoint
 
 PHC_THRESHOLD_M = 0.5
 """PHC's failure criterion: the mean body-position error above this (m) fails the clip."""
@@ -236,7 +237,7 @@ def _json_or_word(text: str) -> Any:
         return text
 
 
-def with_settings(loaded: eval_core.Loaded, pairs: list[str]) -> eval_core.Loaded:
+def with_settings(loaded: checkpoint.Loaded, pairs: list[str]) -> checkpoint.Loaded:
     """The checkpoint with `NAME=VALUE` pairs (`SETTABLE` fields of its `ExecutorConfig`; VALUE as
     JSON, or a bare word for a choice, or comma-separated numbers for a tuple) in its task config;
     ValueError naming the pair and what is allowed. The policy is unchanged: this measures a
@@ -270,7 +271,7 @@ def with_settings(loaded: eval_core.Loaded, pairs: list[str]) -> eval_core.Loade
     return dataclasses.replace(loaded, cfg=dataclasses.replace(loaded.cfg, task=task))
 
 
-def make_eval_env(loaded: eval_core.Loaded, clips: Iterable[EvalClip], perturbation: Perturbation = Perturbation()):
+def make_eval_env(loaded: checkpoint.Loaded, clips: Iterable[EvalClip], perturbation: Perturbation = Perturbation()):
     """The evaluation environment with the imported clips registered and the mass scaled."""
     from common.tasks.registry import make_env
 
@@ -374,11 +375,11 @@ def _init_worker(state_file: str, clips: list[EvalClip], perturbation: Perturbat
     from learner.config import RunConfig
 
     torch.set_num_threads(1)
-    loaded = eval_core.load(state_file)
+    loaded = checkpoint.load_trained(state_file)
     if cfg_json:  # the parent's config, with any `--set` in it
         loaded = dataclasses.replace(loaded, cfg=RunConfig.from_json(cfg_json))
     env = make_eval_env(loaded, clips, perturbation)
-    policy = eval_core.ZeroPolicy(env.act_dim) if zero_action else eval_core.make_policy(loaded, env.obs_dim, env.act_dim)
+    policy = harness.ZeroPolicy(env.act_dim) if zero_action else checkpoint.make_policy(loaded, env.obs_dim, env.act_dim)
     _WORKER.update(env=env, policy=policy,
                    rule=loaded.cfg.task.executor.termination, perturbation=perturbation)
 
@@ -399,18 +400,18 @@ def episode_jobs(clips: list[EvalClip], durations: dict[str, float], starts: int
     return jobs
 
 
-def evaluate(loaded: eval_core.Loaded, clips: list[EvalClip], starts: int, workers: int = 1,
+def evaluate(loaded: checkpoint.Loaded, clips: list[EvalClip], starts: int, workers: int = 1,
              perturbation: Perturbation = Perturbation(), progress: Callable[[int, int], None] | None = None,
              durations: dict[str, float] | None = None, zero_action: bool = False) -> list[dict[str, Any]]:
     """One episode per (clip, start) (`episode_jobs`), each record tagged with its clip's label
     and split, in job order. `durations` (clip time, s) fixes the start frames; by default they
     are read from an environment at normal speed, so every perturbation row starts the same frames.
-    `zero_action`: act with zeros instead of the checkpoint's policy (`eval_core.ZeroPolicy`)."""
+    `zero_action`: act with zeros instead of the checkpoint's policy (`harness.ZeroPolicy`)."""
     if durations is None:
         durations = clip_durations(make_eval_env(loaded, clips), clips)
     jobs = episode_jobs(clips, durations, starts)
     init = (str(loaded.path), list(clips), perturbation, zero_action, loaded.cfg.to_json())
-    results = eval_core.run_jobs(_init_worker, init, _work, jobs, workers, progress)
+    results = harness.run_jobs(_init_worker, init, _work, jobs, workers, progress)
     by_id = {c.clip_id: c for c in clips}
     for r in results:
         r["label"], r["split"] = by_id[r["clip_id"]].label, by_id[r["clip_id"]].split

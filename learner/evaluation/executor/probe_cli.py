@@ -48,7 +48,7 @@ def open_checkpoint(p: argparse.ArgumentParser, args: argparse.Namespace) -> Ope
     """Load `args.checkpoint`; a usage error (exit 2) naming the value when it is no executor, a
     `--set` pair is bad or changes nothing the probe reads, a split holds no clips or `--out`
     cannot be written, before any episode runs. Repeated `--splits` are run once."""
-    from learner.evaluation import eval_core
+    from learner import checkpoint
     from learner.evaluation.executor import evaluate as xe
 
     args.splits = list(dict.fromkeys(args.splits))
@@ -60,7 +60,7 @@ def open_checkpoint(p: argparse.ArgumentParser, args: argparse.Namespace) -> Ope
     unread = [pair for pair in args.settings if pair.partition("=")[0].strip().replace("-", "_") in UNREAD_SETTINGS]
     if unread:
         p.error(f"--set {' '.join(unread)}: no figure of the probe depends on {', '.join(UNREAD_SETTINGS)}")
-    loaded = eval_core.load(args.checkpoint)
+    loaded = checkpoint.load_trained(args.checkpoint)
     if loaded.cfg.task.name != "executor":
         p.error(f"--checkpoint {args.checkpoint} is a {loaded.cfg.task.name!r} checkpoint; the probe needs an executor")
     try:
@@ -72,7 +72,7 @@ def open_checkpoint(p: argparse.ArgumentParser, args: argparse.Namespace) -> Ope
     if empty:
         p.error(f"--splits {' '.join(empty)}: no clip of {loaded.cfg.name} is in that split")
     env = xe.make_eval_env(loaded, clips)
-    policy = eval_core.make_policy(loaded, env.obs_dim, env.nu)
+    policy = checkpoint.make_policy(loaded, env.obs_dim, env.nu)
     title = loaded.cfg.name + (f" with --set {' '.join(args.settings)}" if args.settings else "")
     return Opened(loaded, clips, env, policy, title)
 

@@ -1,5 +1,5 @@
 """`morphmimic evaluate --checkpoint X` on a UniCon motion executor checkpoint (task "executor";
-`learner/evaluation/evaluate.py` hands such checkpoints here): success per clip over the train and test
+`morphmimic evaluate` hands such checkpoints here): success per clip over the train and test
 split (METHOD.md B "Evaluation"), with files and pictures.
 
     morphmimic evaluate --checkpoint runs/executor                       # every humanoid clip, 10 starts each
@@ -35,7 +35,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from learner.evaluation import cli_args, eval_core
+from learner.evaluation import cli_args
+from learner.evaluation.executor import EXECUTOR_ONLY_OPTIONS
+from learner import checkpoint
 
 from learner.evaluation.shape import plots as eval_plots
 
@@ -67,7 +69,7 @@ def parser(prog: str = "morphmimic evaluate") -> argparse.ArgumentParser:
     return p
 
 
-def select_clips(p: argparse.ArgumentParser, values: list[str] | None, loaded: eval_core.Loaded) -> list[xe.EvalClip]:
+def select_clips(p: argparse.ArgumentParser, values: list[str] | None, loaded: checkpoint.Loaded) -> list[xe.EvalClip]:
     """--clips resolved against the checkpoint's config; an unusable file is a usage error."""
     from common.motion.errors import ClipError
 
@@ -108,7 +110,7 @@ STATS_HEAD = ("| clips | episodes | success % | pose success % | PHC success % |
               "| tracked % |")
 
 
-def markdown(loaded: eval_core.Loaded, summary: dict, meta: dict, files: list[str]) -> str:
+def markdown(loaded: checkpoint.Loaded, summary: dict, meta: dict, files: list[str]) -> str:
     head = "| group " + STATS_HEAD
     rule = "|---" * 10 + "|"
     lines = [
@@ -188,11 +190,11 @@ class _CameraView:
     character = property(lambda self: self._env.character)
 
 
-def render_clip(loaded: eval_core.Loaded, clip: xe.EvalClip, start_s: float, out: Path, stem: str, gif: bool) -> list[str]:
+def render_clip(loaded: checkpoint.Loaded, clip: xe.EvalClip, start_s: float, out: Path, stem: str, gif: bool) -> list[str]:
     """Strip (and GIF) of one evaluation episode."""
 
     env = xe.make_eval_env(loaded, [clip])
-    policy = eval_core.make_policy(loaded, env.obs_dim, env.act_dim)
+    policy = checkpoint.make_policy(loaded, env.obs_dim, env.act_dim)
     rec = eval_plots.Recorder(every=3 if gif else 6)
     xe.run_episode(env, policy, clip.clip_id, start_s, loaded.cfg.task.executor.termination, seed=0,
                    on_step=lambda e, k: rec(_CameraView(e), k))
@@ -214,7 +216,7 @@ def best_and_worst(summary: dict) -> tuple[str, str]:
     return order[-1][0], order[0][0]
 
 
-def evaluate_checkpoint(loaded: eval_core.Loaded, clips: list[xe.EvalClip], starts: int, workers: int, out: Path,
+def evaluate_checkpoint(loaded: checkpoint.Loaded, clips: list[xe.EvalClip], starts: int, workers: int, out: Path,
                         render: bool = False, gif: bool = False, log: str = "evaluate", zero_action: bool = False,
                         settings: list[str] | None = None) -> dict[str, Any]:
     """Run the evaluation and write results.json, summary.md, clips.png (and the strips);
@@ -264,10 +266,10 @@ def line(name: str, group: str, s: dict) -> str:
 def main(argv: list[str]) -> int:
     p = parser()
     args = p.parse_args(argv)
-    loaded = eval_core.load(args.checkpoint)
+    loaded = checkpoint.load_trained(args.checkpoint)
     if loaded.cfg.task.name != "executor":
         p.error(f"--checkpoint {args.checkpoint}: task {loaded.cfg.task.name!r} is not the executor; "
-                f"{', '.join(eval_core.EXECUTOR_ONLY_OPTIONS)} are executor options")
+                f"{', '.join(EXECUTOR_ONLY_OPTIONS)} are executor options")
     try:
         loaded = xe.with_settings(loaded, args.settings)
     except ValueError as exc:

@@ -54,7 +54,9 @@ from typing import Any
 
 import numpy as np
 
-from learner.evaluation import cli_args, eval_core
+from learner.evaluation import cli_args, harness
+from learner.evaluation.shape import episodes
+from learner import checkpoint
 
 from learner.evaluation.executor import evaluate as xe
 from common.characters.mass import scale_body_mass, set_body_mass
@@ -133,7 +135,7 @@ def projectile_flight_steps(row: Row, control_hz: float) -> int:
     return int(math.ceil(p.projectile_distance_m / p.projectile_speed_mps * control_hz))
 
 
-def projectile_problem(loaded: eval_core.Loaded, clip: xe.EvalClip) -> str | None:
+def projectile_problem(loaded: checkpoint.Loaded, clip: xe.EvalClip) -> str | None:
     """Why the projectile rows cannot run with this environment, or None: the character must
     start on the tracked frame in an environment that has the projectile body."""
     env = xe.make_eval_env(loaded, [clip], xe.Perturbation(projectile_every=1))
@@ -145,7 +147,7 @@ def projectile_problem(loaded: eval_core.Loaded, clip: xe.EvalClip) -> str | Non
     return None
 
 
-def executor_rows(loaded: eval_core.Loaded, clips: list[xe.EvalClip], starts: int, workers: int, rows: list[Row],
+def executor_rows(loaded: checkpoint.Loaded, clips: list[xe.EvalClip], starts: int, workers: int, rows: list[Row],
                   log=print) -> tuple[dict, list[dict]]:
     """(the unperturbed row, one result per row), the same (clip, start) episodes in each."""
     base_env = xe.make_eval_env(loaded, clips)
@@ -213,7 +215,7 @@ _SHAPE: dict[str, Any] = {}
 
 
 def _shape_task(cfg, episode_s: float, speed: float):
-    task = eval_core.eval_task(cfg, episode_s)
+    task = harness.eval_task(cfg, episode_s)
     if speed != 1.0:
         lo, hi = task.imitate.speed_range
         task = dataclasses.replace(task, imitate=dataclasses.replace(task.imitate, speed_range=(min(lo, speed), max(hi, speed))))
@@ -226,10 +228,10 @@ def _init_shape(state_file: str, episode_s: float, pert: xe.Perturbation) -> Non
     from common.tasks.registry import make_env
 
     torch.set_num_threads(1)
-    loaded = eval_core.load(state_file)
+    loaded = checkpoint.load_trained(state_file)
     env = make_env(_shape_task(loaded.cfg.task, episode_s, pert.speed), seed=0)
     _SHAPE.update(env=_MassScaled(env, pert.mass) if pert.mass != 1.0 else env,
-                  policy=eval_core.make_policy(loaded, env.obs_dim, env.act_dim), pert=pert)
+                  policy=checkpoint.make_policy(loaded, env.obs_dim, env.act_dim), pert=pert)
 
 
 def _shape_work(job: tuple[int, np.ndarray, int]) -> dict[str, Any]:
@@ -238,17 +240,17 @@ def _shape_work(job: tuple[int, np.ndarray, int]) -> dict[str, Any]:
     env, pert = _SHAPE["env"], _SHAPE["pert"]
     if pert.speed != 1.0:
         params[list(env.space.names).index("speed")] = pert.speed
-    r = eval_core.run_episode(env, _SHAPE["policy"], params, seed)
+    r = episodes.run_episode(env, _SHAPE["policy"], params, seed)
     return {"index": i, "return": r["return"], "fell": r["fell"] or r["diverged"], "steps": r["steps"]}
 
 
-def shape_rows(loaded: eval_core.Loaded, shapes: int, episode_s: float, seed: int, workers: int, rows: list[Row],
+def shape_rows(loaded: checkpoint.Loaded, shapes: int, episode_s: float, seed: int, workers: int, rows: list[Row],
                log=print) -> tuple[dict, list[dict]]:
     """(the unperturbed row, one result per row) for a shape controller on `shapes` random shapes."""
     from common.tasks.registry import task_space
 
-    space = task_space(eval_core.eval_task(loaded.cfg.task, episode_s))
-    params = eval_core.eval_shapes(space, shapes, seed)
+    space = task_space(harness.eval_task(loaded.cfg.task, episode_s))
+    params = episodes.eval_shapes(space, shapes, seed)
     if "speed" in space.names:  # the unperturbed episodes play at normal speed; rows set their own
         params[:, list(space.names).index("speed")] = 1.0
     planned = max(1, int(round(episode_s * loaded.cfg.task.control_hz)))
@@ -257,7 +259,7 @@ def shape_rows(loaded: eval_core.Loaded, shapes: int, episode_s: float, seed: in
     def measure(name: str, pert: xe.Perturbation) -> dict[str, Any]:
         t0 = time.monotonic()
         init = (str(loaded.path), episode_s, pert)
-        res = eval_core.run_jobs(_init_shape, init, _shape_work, jobs, workers)
+        res = harness.run_jobs(_init_shape, init, _shape_work, jobs, workers)
         perf = float(np.mean([r["return"] / planned for r in res]))
         return {"row": name, "performance": perf, "success_pct": 100.0 * float(np.mean([not r["fell"] for r in res])),
                 "mean_return": float(np.mean([r["return"] for r in res])), "seconds": time.monotonic() - t0,
@@ -338,7 +340,7 @@ def main(argv: list[str]) -> int:
                         f"{', '.join(xe.SETTABLE)}")
     p.add_argument("--out", default="", help="output directory (default: <checkpoint dir>/robustness)")
     args = p.parse_args(argv)
-    loaded = eval_core.load(args.checkpoint)
+    loaded = checkpoint.load_trained(args.checkpoint)
     executor = loaded.cfg.task.name == "executor"
     defaults = vars(p.parse_args(["--checkpoint", args.checkpoint]))
     wrong = (("shapes", "episode_s", "seed") if executor else ("clips", "starts", "projectile_speed", "projectile_distance",

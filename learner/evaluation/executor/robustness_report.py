@@ -8,7 +8,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from learner.evaluation import eval_core
+from learner import checkpoint
 
 from learner.evaluation.shape import plots as eval_plots
 
@@ -28,7 +28,7 @@ def _pct(x: float | None) -> str:
     return "-" if x is None else f"{100.0 * x:.1f}"
 
 
-def markdown(loaded: eval_core.Loaded, base: dict, results: list[dict], protocol: dict) -> str:
+def markdown(loaded: checkpoint.Loaded, base: dict, results: list[dict], protocol: dict) -> str:
     executor = loaded.cfg.task.name == "executor"
     if executor:
         ex = loaded.cfg.task.executor
@@ -131,7 +131,7 @@ def plot(results: list[dict], path: Path, title: str) -> Path | None:
     return eval_plots.save_figure(fig, path)
 
 
-def write(loaded: eval_core.Loaded, base: dict, results: list[dict], protocol: dict, out: Path, wall_s: float) -> list[str]:
+def write(loaded: checkpoint.Loaded, base: dict, results: list[dict], protocol: dict, out: Path, wall_s: float) -> list[str]:
     """robustness.json, robustness.png (when a plotted row ran) and robustness.md; their paths."""
     meta = {"checkpoint": str(loaded.path), "name": loaded.name, "task": loaded.cfg.task.name,
             "iteration": int(loaded.state.get("iteration", 0)), "env_steps": int(loaded.state.get("env_steps", 0)),

@@ -27,7 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
-from learner.evaluation import cli_args, eval_core
+from learner.evaluation import cli_args, harness
+from learner.evaluation.shape import episodes
+from learner import checkpoint
 
 from learner.evaluation.shape import plots as eval_plots
 
@@ -62,7 +64,7 @@ def shape_at(schedule, t_s: float, space, n_shape: int, strength: float) -> np.n
     return np.clip(out, space.low_array[:n_shape], space.high_array[:n_shape])
 
 
-def run_morph(loaded: eval_core.Loaded, schedule=None, strength: float = 1.0, every: int = 1, seed: int = 0,
+def run_morph(loaded: checkpoint.Loaded, schedule=None, strength: float = 1.0, every: int = 1, seed: int = 0,
               recorder=None) -> dict:
     """Run one episode at the base shape, morphing along `schedule` (default per
     parameterization); returns {"fell", "seconds", "morphs", "schedule"}."""
@@ -73,8 +75,8 @@ def run_morph(loaded: eval_core.Loaded, schedule=None, strength: float = 1.0, ev
         raise SystemExit(f"no default morph schedule for parameterization {loaded.cfg.task.body.parameterization!r}; "
                          f"pass --schedule")
     seconds = float(schedule[-1][0])
-    env = make_env(eval_core.eval_task(loaded.cfg.task, seconds), seed=0)
-    policy = eval_core.make_policy(loaded, env.obs_dim, env.act_dim)
+    env = make_env(harness.eval_task(loaded.cfg.task, seconds), seed=0)
+    policy = checkpoint.make_policy(loaded, env.obs_dim, env.act_dim)
     n_shape = env.n_shape
     params = env.space.default_array.copy()
     params[:n_shape] = shape_at(schedule, 0.0, env.space, n_shape, strength)
@@ -89,7 +91,7 @@ def run_morph(loaded: eval_core.Loaded, schedule=None, strength: float = 1.0, ev
                 env.set_shape(target)
                 morphs[0] += 1
 
-    result = eval_core.run_episode(env, policy, params, seed, on_step=on_step)
+    result = episodes.run_episode(env, policy, params, seed, on_step=on_step)
     return {"fell": result["fell"], "seconds": result["seconds"], "planned_seconds": seconds, "morphs": morphs[0],
             "return": result["return"], "strength": strength, "schedule": schedule}
 
@@ -105,7 +107,7 @@ def main(argv: list[str]) -> int:
     p.add_argument("--every", type=cli_args.positive_int, default=1, help="rebuild the body every this many control steps")
     p.add_argument("--gif", action="store_true", help="also write morph.gif")
     args = p.parse_args(argv)
-    loaded = eval_core.load(args.checkpoint)
+    loaded = checkpoint.load_trained(args.checkpoint)
     schedule = args.schedule
     out = Path(args.out) if args.out else loaded.path.parent / "morph"
     rec = eval_plots.Recorder(every=3 if args.gif else 15)

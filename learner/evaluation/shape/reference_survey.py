@@ -6,7 +6,7 @@ shapes `morphmimic evaluate` draws, per root-height rule and body clearance.
 
 Won & Lee 2019 (METHOD.md A) retarget the clip to every body; a retargeting that asks what no
 body can do shows up as falls a controller cannot avoid. Per (rule, clearance), over the same
-shapes (`eval_core.eval_shapes`, the evaluation's seed), the reference as the task builds it
+shapes (`episodes.eval_shapes`, the evaluation's seed), the reference as the task builds it
 (`ImitateEnv.reset`):
 - root step: the largest change of the root's height between two frames (`check.root_bob`);
   a walk bobs by a few mm per frame, a jump of centimetres is a vertical jerk;
@@ -78,7 +78,7 @@ def table(rows: list[dict]) -> str:
 def main(argv: list[str]) -> int:
     from common.motion.root_height import ROOT_HEIGHT_RULES
     from common.tasks.registry import make_env
-    from learner.evaluation import eval_core
+    from learner.evaluation.shape import episodes
     from learner.presets import PRESETS
 
     p = argparse.ArgumentParser(prog="morphmimic references", description=__doc__,
@@ -95,7 +95,7 @@ def main(argv: list[str]) -> int:
     p.add_argument("--out", default="", help="output directory (default: none, print only)")
     args = p.parse_args(argv)
     env = make_env(PRESETS[args.preset][1].task, seed=0)
-    shapes = eval_core.eval_shapes(env.space, args.shapes, args.seed)
+    shapes = episodes.eval_shapes(env.space, args.shapes, args.seed)
     rows = []
     for rule in args.rules:
         for clearance in args.clearances:

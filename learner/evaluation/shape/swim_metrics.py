@@ -51,7 +51,7 @@ def target_rule(env: Any) -> str:
 
 
 class SwimTracker:
-    """Called after every control step of an evaluation episode (`eval_core.run_episode`'s
+    """Called after every control step of an evaluation episode (`episodes.run_episode`'s
     `on_step`); `result()` gives the episode's swim metrics."""
 
     def __init__(self) -> None:

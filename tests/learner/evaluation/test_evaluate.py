@@ -74,17 +74,18 @@ def test_evaluate_can_retarget_the_reference_another_way(tmp_path: Path) -> None
 
 
 def test_same_seed_gives_the_same_shapes(tmp_path: Path) -> None:
-    from learner.evaluation import eval_core
+    from learner.evaluation import harness
+    from learner.evaluation.shape import episodes
 
     _tiny_checkpoint(tmp_path, "tiny")
-    loaded = eval_core.load(tmp_path / "tiny")
+    loaded = checkpoint.load_trained(tmp_path / "tiny")
     from common.tasks.registry import task_space
 
-    space = task_space(eval_core.eval_task(loaded.cfg.task, 1.0))
-    np.testing.assert_array_equal(eval_core.eval_shapes(space, 5, 7), eval_core.eval_shapes(space, 5, 7))
+    space = task_space(harness.eval_task(loaded.cfg.task, 1.0))
+    np.testing.assert_array_equal(episodes.eval_shapes(space, 5, 7), episodes.eval_shapes(space, 5, 7))
     # A checkpoint trained on a shrunken box (a curriculum stage) is evaluated on the whole box.
     shrunk = dataclasses.replace(loaded.cfg.task, body=dataclasses.replace(loaded.cfg.task.body, shape_box_scale=0.25))
-    np.testing.assert_array_equal(task_space(eval_core.eval_task(shrunk, 1.0)).low_array, space.low_array)
+    np.testing.assert_array_equal(task_space(harness.eval_task(shrunk, 1.0)).low_array, space.low_array)
 
 
 def test_extremeness_is_the_distance_from_the_base_shape_one_scale_per_side() -> None:
@@ -92,14 +93,14 @@ def test_extremeness_is_the_distance_from_the_base_shape_one_scale_per_side() ->
     base shape scores 0 and either end of a parameter scores 1, however far from the base it is."""
     from common.tasks.base import TaskConfig
     from common.tasks.registry import task_space
-    from learner.evaluation import eval_core
+    from learner.evaluation.shape import episodes
 
     space = task_space(TaskConfig(name="lower_biped", body=BodyConfig(parameterization="height_thickness")))
     lo, hi, base = space.low_array, space.high_array, space.default_array
     assert not np.allclose(hi - base, base - lo)  # the box is lopsided
     ends = np.stack([base, np.where(np.arange(space.dim) == 0, lo, base), np.where(np.arange(space.dim) == 0, hi, base)])
-    np.testing.assert_allclose(eval_core.extremeness(space, ends, 1), [0.0, 1.0, 1.0])
-    corner = eval_core.extremeness(space, np.stack([lo, hi]), 2)
+    np.testing.assert_allclose(episodes.extremeness(space, ends, 1), [0.0, 1.0, 1.0])
+    corner = episodes.extremeness(space, np.stack([lo, hi]), 2)
     np.testing.assert_allclose(corner, [np.sqrt(2), np.sqrt(2)])
 
 
@@ -108,7 +109,7 @@ def test_summary_counts_falls_divergences_and_the_extreme_tenth() -> None:
     near the base diverged (ended early: a fall too); the rest stayed up."""
     from common.tasks.base import TaskConfig
     from common.tasks.registry import task_space
-    from learner.evaluation import eval_core
+    from learner.evaluation.shape import episodes
 
     space = task_space(TaskConfig(name="lower_biped", body=BodyConfig(parameterization="height_thickness")))
     base = space.default_array
@@ -116,7 +117,7 @@ def test_summary_counts_falls_divergences_and_the_extreme_tenth() -> None:
     results = [{"params": [x, *base[1:]], "fell": i >= 18, "diverged": i == 1, "return": 1.0, "task_reward": 2.0,
                 "seconds": 3.0, "fall_bodies": ["Spine", "TibiaL"][: i - 17] if i >= 18 else []}
                for i, x in enumerate(xs)]
-    s = eval_core.summarize(results, space, 2)
+    s = episodes.summarize(results, space, 2)
     assert s["fall_down_pct"] == pytest.approx(15.0)
     assert s["fall_down_pct_extreme10"] == 100.0 and s["diverged"] == 1
     assert s["falls_by_body"] == {"Spine": 2, "TibiaL": 1}
@@ -128,14 +129,14 @@ def test_summary_tables_falls_by_the_references_root_range() -> None:
     say so, and an empty bin has no rate."""
     from common.tasks.base import TaskConfig
     from common.tasks.registry import task_space
-    from learner.evaluation import eval_core
+    from learner.evaluation.shape import episodes
 
     space = task_space(TaskConfig(name="lower_biped", body=BodyConfig(parameterization="height_thickness")))
     spans = [0.01, 0.02, 0.04, 0.12, 0.20]
     results = [{"params": list(space.default_array), "fell": z > 0.1, "diverged": False, "return": 1.0,
                 "task_reward": 1.0, "seconds": 1.0, "fall_bodies": [], "ref_root_range_m": z, "ref_root_step_m": z / 4}
                for z in spans]
-    rows = eval_core.summarize(results, space, 2)["falls_by_ref_root_range"]
+    rows = episodes.summarize(results, space, 2)["falls_by_ref_root_range"]
     assert [r["root_range"] for r in rows] == ["0-3 cm", "3-6 cm", "6-10 cm", "over 10 cm"]
     assert [r["shapes"] for r in rows] == [2, 1, 0, 2]
     assert [r["fall_down_pct"] for r in rows] == [0.0, 0.0, None, 100.0]
@@ -145,13 +146,13 @@ def test_summary_tables_falls_by_the_references_clearance() -> None:
     """A reference that puts a shin into the floor is its own bin, below the ones that clear it."""
     from common.tasks.base import TaskConfig
     from common.tasks.registry import task_space
-    from learner.evaluation import eval_core
+    from learner.evaluation.shape import episodes
 
     space = task_space(TaskConfig(name="lower_biped", body=BodyConfig(parameterization="height_thickness")))
     clear = [-0.01, 0.003, 0.01, 0.05, 0.08]
     results = [{"params": list(space.default_array), "fell": c < 0.005, "diverged": False, "return": 1.0,
                 "task_reward": 1.0, "seconds": 1.0, "fall_bodies": [], "ref_clearance_m": c} for c in clear]
-    rows = eval_core.summarize(results, space, 2)["falls_by_ref_clearance"]
+    rows = episodes.summarize(results, space, 2)["falls_by_ref_clearance"]
     assert [r["clearance"] for r in rows] == ["under 0 cm", "0-0.5 cm", "0.5-2 cm", "over 2 cm"]
     assert [r["shapes"] for r in rows] == [1, 1, 1, 2]
     assert [r["fall_down_pct"] for r in rows] == [100.0, 100.0, 0.0, 0.0]
@@ -180,7 +181,7 @@ def test_body_clearance_finds_a_shin_pushed_into_the_floor() -> None:
 
 def test_evaluate_box_scale_draws_shapes_from_the_shrunk_box(tmp_path: Path, capsys) -> None:
     from common.tasks.registry import task_space
-    from learner.evaluation import eval_core, evaluate
+    from learner.evaluation import evaluate, harness
 
     _tiny_checkpoint(tmp_path, "tiny")
     out = tmp_path / "eval"
@@ -189,7 +190,7 @@ def test_evaluate_box_scale_draws_shapes_from_the_shrunk_box(tmp_path: Path, cap
     assert "in the box x0.25" in capsys.readouterr().out
     res = json.loads((out / "results.json").read_text())
     assert res["meta"]["box_scale"] == 0.25 and "shrunk x0.25" in (out / "summary.md").read_text()
-    full = task_space(eval_core.eval_task(eval_core.load(tmp_path / "tiny").cfg.task, 1.0))
+    full = task_space(harness.eval_task(checkpoint.load_trained(tmp_path / "tiny").cfg.task, 1.0))
     base, lo, hi = full.default_array, full.low_array, full.high_array
     params = np.array([r["params"] for r in res["shapes"]])
     assert np.all(params >= base + 0.25 * (lo - base) - 1e-12) and np.all(params <= base + 0.25 * (hi - base) + 1e-12)
@@ -258,7 +259,7 @@ def test_ablation_says_whether_the_papers_two_effects_reproduce(norm_falls, nono
                                                                 says) -> None:
     from types import SimpleNamespace
 
-    from learner.evaluation import ablation
+    from learner.evaluation.shape import ablation
 
     def row(preset: str, falls: float, uniformity: float) -> dict:
         return {"loaded": SimpleNamespace(cfg=PRESETS[preset][1]),
@@ -279,7 +280,7 @@ def test_ablation_says_whether_the_papers_two_effects_reproduce(norm_falls, nono
 def test_normalizations_effect_on_task_achievement_is_relative_and_the_paper_rule_says_no_task_rule() -> None:
     from types import SimpleNamespace
 
-    from learner.evaluation import ablation
+    from learner.evaluation.shape import ablation
 
     def row(preset: str, achievement: float, rule: str) -> dict:
         return {"loaded": SimpleNamespace(cfg=PRESETS[preset][1]), "meta": {"fall_rule": rule},
@@ -298,7 +299,7 @@ def test_normalizations_effect_on_task_achievement_is_relative_and_the_paper_rul
 def test_a_map_that_is_more_even_only_in_its_worst_cell_is_called_so() -> None:
     from types import SimpleNamespace
 
-    from learner.evaluation import ablation
+    from learner.evaluation.shape import ablation
 
     def row(preset: str, uniformity: float, returns: list[float]) -> dict:
         return {"loaded": SimpleNamespace(cfg=PRESETS[preset][1]), "shapes": [{"return": x} for x in returns],
@@ -314,11 +315,11 @@ def test_a_map_that_is_more_even_only_in_its_worst_cell_is_called_so() -> None:
 
 
 def test_ablation_keeps_two_checkpoints_of_one_run_apart(tmp_path: Path) -> None:
-    from learner.evaluation import ablation, eval_core
+    from learner.evaluation import ablation
     from learner.learner import Learner
 
     first = _tiny_checkpoint(tmp_path, "run")
-    state = Learner(eval_core.load(first).cfg).state_dict()
+    state = Learner(checkpoint.load_trained(first).cfg).state_dict()
     state["iteration"] = 5
     second = checkpoint.save(tmp_path / "run" / "ckpt", 5, state, keep=2)
     out = tmp_path / "abl"
@@ -328,12 +329,12 @@ def test_ablation_keeps_two_checkpoints_of_one_run_apart(tmp_path: Path) -> None
 
 
 def test_ablation_last_n_takes_each_runs_newest_checkpoints_as_one_arm(tmp_path: Path) -> None:
-    from learner.evaluation import ablation, eval_core
+    from learner.evaluation import ablation
     from learner.learner import Learner
 
     for name, changes in (("norm", {}), ("nonorm", {"reward_normalization": False})):
         first = _tiny_checkpoint(tmp_path, name, **changes)
-        state = Learner(eval_core.load(first).cfg).state_dict()
+        state = Learner(checkpoint.load_trained(first).cfg).state_dict()
         for it in (5, 9):
             state["iteration"] = it
             checkpoint.save(tmp_path / name / "ckpt", it, state, keep=3)
@@ -357,7 +358,7 @@ def test_ablation_last_n_takes_each_runs_newest_checkpoints_as_one_arm(tmp_path:
 def test_an_arms_mean_row_averages_its_checkpoints_and_says_whether_arms_are_apart() -> None:
     from types import SimpleNamespace
 
-    from learner.evaluation import ablation
+    from learner.evaluation.shape import ablation
 
     def row(preset: str, it: int, falls: float) -> dict:
         return {"loaded": SimpleNamespace(cfg=PRESETS[preset][1]), "shapes": [{"return": 1.0}, {"return": 3.0}],
@@ -379,12 +380,11 @@ def test_an_arms_mean_row_averages_its_checkpoints_and_says_whether_arms_are_apa
 
 
 def test_morph_demo_changes_the_body_during_the_episode(tmp_path: Path) -> None:
-    from learner.evaluation import eval_core
     from learner.evaluation.shape import morph_demo
 
     _tiny_checkpoint(tmp_path, "tiny")
     schedule = [(0.0, {}), (0.3, {"global_z": 1.3})]
-    result = morph_demo.run_morph(eval_core.load(tmp_path / "tiny"), schedule)
+    result = morph_demo.run_morph(checkpoint.load_trained(tmp_path / "tiny"), schedule)
     assert result["morphs"] >= 5
 
 
@@ -403,11 +403,12 @@ def test_evaluate_morph_forwards_the_strength_and_refuses_it_alone(tmp_path: Pat
 
 def test_bad_map_params_fail_before_any_episode_and_a_render_failure_keeps_the_results(tmp_path: Path,
                                                                                       monkeypatch) -> None:
-    from learner.evaluation import eval_core, evaluate
+    from learner.evaluation.shape import evaluate
+    from learner.evaluation.shape import episodes
 
     _tiny_checkpoint(tmp_path, "tiny")
     ran = []
-    monkeypatch.setattr(eval_core, "evaluate", lambda *a, **k: ran.append(1))
+    monkeypatch.setattr(episodes, "evaluate", lambda *a, **k: ran.append(1))
     argv = ["--checkpoint", str(tmp_path / "tiny"), "--shapes", "2", "--episode-s", "0.3", "--out", str(tmp_path / "e")]
     with pytest.raises(SystemExit, match=r"--map-params \['global_z', 'nope'\]: choose two different names from \['global_x'"):
         evaluate.main(argv + ["--map-params", "global_z", "nope"])
@@ -467,10 +468,9 @@ def test_shipped_controller_stays_up_through_a_moderate_morph(name: str, strengt
     lower_biped is not good enough (it falls within about 2 s even without a morph);
     lower_biped-curriculum, trained on the old reference and MASS's shank box, falls at half
     strength on the slimmer shank (4.9 s), not at 0.3 (its README)."""
-    from learner.evaluation import eval_core
     from learner.evaluation.shape import morph_demo
 
-    result = morph_demo.run_morph(eval_core.load(PRETRAINED / name), strength=strength)
+    result = morph_demo.run_morph(checkpoint.load_trained(PRETRAINED / name), strength=strength)
     assert result["morphs"] > 10
     assert not result["fell"], f"fell after {result['seconds']:.1f} s of {result['planned_seconds']:.1f} s"
 
@@ -485,35 +485,38 @@ def test_shipped_controller_stays_up_through_a_moderate_morph(name: str, strengt
     ("morph_demo", "--strength", "nan", "a finite number"),
     ("evaluate", "--seed", "-1", "an integer >= 0"),
     ("ablation", "--seed", "-1", "an integer >= 0"),
-    ("learning_curve", "--target", "nan", "a number in [0, 100]"),
-    ("learning_curve", "--target", "150", "a number in [0, 100]"),
-    ("learning_curve", "--start", "nan", "a finite number of seconds >= 0"),
-    ("learning_curve", "--start", "-5", "a finite number of seconds >= 0"),
+    ("learning_curve", "--target", "nan", "a finite number in [0, 100]"),
+    ("learning_curve", "--target", "150", "a finite number in [0, 100]"),
+    ("learning_curve", "--start", "nan", "a finite number >= 0"),
+    ("learning_curve", "--start", "-5", "a finite number >= 0"),
 ])
 def test_bad_numbers_are_usage_errors_naming_the_value(command, flag, bad, allowed, capsys) -> None:
     """Rejected before any checkpoint is read (the checkpoint path does not exist)."""
     import importlib
 
-    module = importlib.import_module(f"learner.evaluation.{command}")
+    module = importlib.import_module(f"learner.evaluation.{'shape.' if command == 'morph_demo' else ''}{command}")
     first = "--checkpoints" if command == "ablation" else "--ckpt-dir" if command == "learning_curve" else "--checkpoint"
     with pytest.raises(SystemExit) as exc:
         module.main([first, "no/such/checkpoint", flag, bad])
     assert exc.value.code == 2
     err = capsys.readouterr().err
-    assert f"argument {flag}: '{bad}'" in err and f"must be {allowed}" in err, err
+    if command == "learning_curve":  # learner.cli_options: "--every = 0 is not allowed: give an integer >= 1"
+        assert f"{flag} = " in err and bad in err and f"is not allowed: give {allowed}" in err, err
+    else:
+        assert f"argument {flag}: '{bad}'" in err and f"must be {allowed}" in err, err
 
 
 def test_the_papers_fall_rule_can_end_the_episodes() -> None:
     """`--fall-rule paper` (imitate_overrides shin_contact_is_fall): the episode ends at the
     paper's fall, so the two fall flags agree; the task's rule lets the shins touch."""
-    from learner.evaluation import eval_core
+    from learner.evaluation.shape import episodes
 
-    loaded = eval_core.load(PRETRAINED / "quadruped")
+    loaded = checkpoint.load_trained(PRETRAINED / "quadruped")
     from common.tasks.registry import task_space
 
-    shapes = eval_core.eval_shapes(task_space(loaded.cfg.task), 4, 7)
-    paper = eval_core.evaluate(loaded, shapes, 4.0, 7, imitate_overrides={"shin_contact_is_fall": True})
-    task = eval_core.evaluate(loaded, shapes, 4.0, 7)
+    shapes = episodes.eval_shapes(task_space(loaded.cfg.task), 4, 7)
+    paper = episodes.evaluate(loaded, shapes, 4.0, 7, imitate_overrides={"shin_contact_is_fall": True})
+    task = episodes.evaluate(loaded, shapes, 4.0, 7)
     assert all(r["fell"] == r["fell_paper_rule"] for r in paper)
     assert all(r["fell_paper_rule"] >= r["fell"] for r in task)
     assert [r["fell_paper_rule"] for r in paper] == [r["fell_paper_rule"] for r in task]
@@ -525,7 +528,7 @@ def test_the_papers_fall_rule_can_end_the_episodes() -> None:
                                         ("fish", "no fall-down figure for this character (`fish`)"),
                                         ("biped", "no fall-down figure for this character (`biped`)")])
 def test_the_summary_sets_beside_a_character_only_the_papers_figure_for_it(task, says):
-    from learner.evaluation.evaluate import paper_line
+    from learner.evaluation.shape.evaluate import paper_line
 
     line = paper_line(task)
     assert says in line and "not comparable" in line

@@ -150,13 +150,13 @@ def test_an_executor_runs_curve_is_its_success_per_split_and_grows_by_its_new_ch
     """An executor run's curve: UniCon's success per split per checkpoint, the same figures as
     `morphmimic evaluate` on that checkpoint; a later call measures only the new checkpoint,
     and a shape controller's curve.json in --out is refused, not overwritten."""
-    from learner.evaluation import eval_core, learning_curve
+    from learner.evaluation import learning_curve
     from learner.evaluation.executor import evaluate as xe
     from learner.learner import Learner
     from tests.learner.evaluation.executor_checkpoints import tiny_executor
 
     run = tiny_executor(tmp_path, clips=("humanoid3d_walk",))
-    loaded = eval_core.load(run)
+    loaded = checkpoint.load_trained(run)
     state = Learner(loaded.cfg).state_dict()
     state["iteration"], state["env_steps"] = 5, 5120
     checkpoint.save(run / "ckpt", 5, state, keep=5)

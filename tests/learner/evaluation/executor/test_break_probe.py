@@ -101,12 +101,12 @@ def test_the_probes_refuse_what_they_cannot_measure_before_any_episode(run_dir: 
 def test_a_step_that_diverged_adds_nothing_to_either_probe(run_dir: Path) -> None:
     """A diverged step leaves the previous step's terms (or none, on the first step) in
     `env.last_terms`: the hooks skip it instead of reading stale or missing terms."""
-    from learner.evaluation import eval_core
+    from learner import checkpoint
     from learner.evaluation.executor import evaluate as xe
     from learner.evaluation.executor.break_probe import BreakHook
     from learner.evaluation.executor.velocity_probe import EpisodeProbe, joint_of_dof, left_out_mask
 
-    loaded = eval_core.load(run_dir)
+    loaded = checkpoint.load_trained(run_dir)
     env = xe.make_eval_env(loaded, xe.resolve_clips(["humanoid3d_walk"], loaded.cfg.task))
     env.reset(0, env.space.default_array, clip_id="humanoid3d_walk", start_s=0.0)
     velocity = EpisodeProbe(env, left_out_mask(joint_of_dof(env.ref_model), ["ankle"]))
@@ -122,12 +122,12 @@ def test_a_step_that_diverged_adds_nothing_to_either_probe(run_dir: Path) -> Non
 
 def test_a_saved_config_naming_clips_the_humanoid_lacks_is_refused_at_load(run_dir: Path, tmp_path: Path) -> None:
     from learner import checkpoint
-    from learner.evaluation import eval_core
+    from learner import checkpoint
 
-    state = checkpoint.load(eval_core.resolve(run_dir))
+    state = checkpoint.load(checkpoint.resolve(run_dir))
     raw = json.loads(state["config"])
     raw["task"]["executor"]["clips"] = ["nope_clip"]
     state["config"] = json.dumps(raw)
     checkpoint.save(tmp_path / "ckpt", 1, state, keep=1)
     with pytest.raises(SystemExit, match=r"its saved configuration is refused: clips \['nope_clip'\] do not play"):
-        eval_core.load(tmp_path)
+        checkpoint.load_trained(tmp_path)

@@ -11,15 +11,15 @@ import pytest
 
 from common.tasks.executor import rewards as rw
 
-from learner.evaluation import eval_core
+from learner import checkpoint
 
 from learner.evaluation.executor import evaluate as xe
 from tests.learner.evaluation.executor_checkpoints import tiny_executor
 
 
 @pytest.fixture(scope="module")
-def loaded(tmp_path_factory) -> eval_core.Loaded:
-    return eval_core.load(tiny_executor(tmp_path_factory.mktemp("ckpt")))
+def loaded(tmp_path_factory) -> checkpoint.Loaded:
+    return checkpoint.load_trained(tiny_executor(tmp_path_factory.mktemp("ckpt")))
 
 
 def test_start_times_are_evenly_spread_over_the_first_80_percent() -> None:
@@ -90,7 +90,7 @@ def test_one_run_without_termination_matches_the_terminating_run(loaded) -> None
     from common.tasks.registry import make_env
 
     env = xe.make_eval_env(loaded, [])
-    policy = eval_core.make_policy(loaded, env.obs_dim, env.act_dim)
+    policy = checkpoint.make_policy(loaded, env.obs_dim, env.act_dim)
     rec = xe.run_episode(env, policy, "humanoid3d_kick", 0.3, "per_term", seed=0)
     assert rec["steps"] == rec["planned_steps"] > 10  # termination off: played to the clip's end
     assert not rec["success"] and not rec["pose_success"]  # an untrained policy fails early

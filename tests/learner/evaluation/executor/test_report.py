@@ -60,7 +60,8 @@ def test_evaluate_a_folder_of_npz_clips(run_dir: Path, tmp_path: Path) -> None:
 def test_zero_action_baseline_runs_the_same_episodes_without_the_policy(run_dir: Path, tmp_path: Path, capsys) -> None:
     import numpy as np
 
-    from learner.evaluation import eval_core, evaluate
+    from learner.evaluation import evaluate, harness
+    from learner import checkpoint
 
     from learner.evaluation.executor import evaluate as xe
 
@@ -69,16 +70,16 @@ def test_zero_action_baseline_runs_the_same_episodes_without_the_policy(run_dir:
     assert evaluate.main([*argv, "--zero-action"]) == 0  # default --out beside the checkpoint, not over its eval_clips
     printed = capsys.readouterr().out
     assert "[evaluate] xtiny (zero action) train:" in printed
-    out = eval_core.load(run_dir).path.parent / "eval_clips_zero_action"
+    out = checkpoint.load_trained(run_dir).path.parent / "eval_clips_zero_action"
     zero, policy = (json.loads((d / "results.json").read_text()) for d in (out, tmp_path / "policy"))
     assert zero["meta"]["actions"] == "zero" and policy["meta"]["actions"] == "mean"
     assert "zero actions, not the policy" in (out / "summary.md").read_text()
     assert [e["start_s"] for e in zero["episodes"]] == [e["start_s"] for e in policy["episodes"]]
     # the baseline is the task under zero actions: the same episode rerun by hand with zeros
-    loaded = eval_core.load(run_dir)
+    loaded = checkpoint.load_trained(run_dir)
     clips = xe.resolve_clips(["humanoid3d_walk"], loaded.cfg.task)
     env = xe.make_eval_env(loaded, clips)
-    by_hand = xe.run_episode(env, eval_core.ZeroPolicy(env.act_dim), "humanoid3d_walk", zero["episodes"][1]["start_s"],
+    by_hand = xe.run_episode(env, harness.ZeroPolicy(env.act_dim), "humanoid3d_walk", zero["episodes"][1]["start_s"],
                              loaded.cfg.task.executor.termination, seed=1)
     assert by_hand["return"] == pytest.approx(zero["episodes"][1]["return"])
     assert not np.isclose(zero["episodes"][1]["return"], policy["episodes"][1]["return"])
@@ -89,7 +90,8 @@ def test_set_evaluates_the_policy_on_a_changed_body_in_every_worker(run_dir: Pat
     changed config gives by hand, not the checkpoint's own; the files say what was changed."""
     import dataclasses
 
-    from learner.evaluation import eval_core, evaluate
+    from learner.evaluation import evaluate
+    from learner import checkpoint
 
     from learner.evaluation.executor import evaluate as xe
 
@@ -99,12 +101,12 @@ def test_set_evaluates_the_policy_on_a_changed_body_in_every_worker(run_dir: Pat
     as_trained, changed = (json.loads((tmp_path / d / "results.json").read_text()) for d in ("as_trained", "set"))
     assert changed["meta"]["settings"] == ["ankle_armature=0.1"] and as_trained["meta"]["settings"] == []
     assert "`--set ankle_armature=0.1`" in (tmp_path / "set" / "summary.md").read_text()
-    loaded = eval_core.load(run_dir)
+    loaded = checkpoint.load_trained(run_dir)
     assert loaded.cfg.task.executor.ankle_armature == 0.01
     moved = xe.with_settings(loaded, ["ankle_armature=0.1"])
     assert moved.cfg.task.executor == dataclasses.replace(loaded.cfg.task.executor, ankle_armature=0.1)
     env = xe.make_eval_env(moved, xe.resolve_clips(["humanoid3d_dance_a"], moved.cfg.task))
-    by_hand = xe.run_episode(env, eval_core.make_policy(moved, env.obs_dim, env.act_dim), "humanoid3d_dance_a",
+    by_hand = xe.run_episode(env, checkpoint.make_policy(moved, env.obs_dim, env.act_dim), "humanoid3d_dance_a",
                              changed["episodes"][1]["start_s"], moved.cfg.task.executor.termination, seed=1)
     assert by_hand["return"] == pytest.approx(changed["episodes"][1]["return"])
     assert by_hand["return"] != pytest.approx(as_trained["episodes"][1]["return"])
@@ -211,10 +213,11 @@ def test_executor_ablation_names_two_checkpoints_of_one_run_by_iteration(tmp_pat
     """Two checkpoints of one run are two rows told apart by their iteration (as their folders),
     and a share of starts on the frame is named in the settings."""
     from learner import checkpoint
-    from learner.evaluation import ablation, eval_core
+    from learner.evaluation import ablation
+    from learner import checkpoint
 
     run = tiny_executor(tmp_path, "mixed", on_frame_share=0.5)
-    state = dict(eval_core.load(run).state, iteration=5, env_steps=5120)
+    state = dict(checkpoint.load_trained(run).state, iteration=5, env_steps=5120)
     checkpoint.save(run / "ckpt", 5, state, keep=5)
     out = tmp_path / "abl"
     assert ablation.main(["--checkpoints", str(run / "ckpt" / "00000000"), str(run / "ckpt" / "00000005"),

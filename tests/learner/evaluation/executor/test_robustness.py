@@ -118,10 +118,10 @@ def test_set_runs_the_rows_on_the_changed_body_and_says_so(tmp_path: Path, capsy
 def test_projectile_rows_throw_the_ball_at_the_character(tmp_path: Path) -> None:
     """Projectile rows run (the balls wait parked, touching nothing), the throws reach the body,
     and a row whose interval times the ball count is shorter than a flight is skipped."""
-    from learner.evaluation import eval_core
+    from learner import checkpoint
     from learner.evaluation.executor import evaluate as xe
 
-    loaded = eval_core.load(tiny_executor(tmp_path))
+    loaded = checkpoint.load_trained(tiny_executor(tmp_path))
     clips = xe.resolve_clips(["humanoid3d_walk"], loaded.cfg.task)
     assert robustness.projectile_problem(loaded, clips[0]) is None
     rows = [r for r in robustness.rows_for(("projectile",)) if r.perturbation.projectile_every in (1, 20)]
@@ -136,7 +136,7 @@ def test_projectile_rows_throw_the_ball_at_the_character(tmp_path: Path) -> None
     def watch(e, k):
         hits.append(float(np.linalg.norm(e.data.xpos[e.balls[0]] - e.data.xpos[1])))
 
-    policy = eval_core.make_policy(loaded, env.obs_dim, env.act_dim)
+    policy = checkpoint.make_policy(loaded, env.obs_dim, env.act_dim)
     xe.run_episode(env, policy, "humanoid3d_walk", 0.0, "per_term", seed=0, perturbation=rows[1].perturbation,
                    on_step=watch)
     assert hits[0] > 1.5 and min(hits[:20]) < 0.3  # launched 2 m away, reaches the body within 20 steps

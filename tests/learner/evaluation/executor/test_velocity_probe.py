@@ -53,12 +53,12 @@ def test_the_left_out_error_is_split_by_contact_over_every_step(run_dir: Path) -
     the whole squared error of those DOF (recomputed here step by step)."""
     import numpy as np
 
-    from learner.evaluation import eval_core
+    from learner import checkpoint
 
     from learner.evaluation.executor import evaluate as xe
     from learner.evaluation.executor.velocity_probe import EpisodeProbe, joint_of_dof, left_out_mask
 
-    loaded = eval_core.load(run_dir)
+    loaded = checkpoint.load_trained(run_dir)
     env = xe.make_eval_env(loaded, xe.resolve_clips(["humanoid3d_walk"], loaded.cfg.task))
     mask = left_out_mask(joint_of_dof(env.ref_model), ["ankle"])
     probe, total, steps = EpisodeProbe(env, mask), [0.0], [0]
@@ -68,7 +68,7 @@ def test_the_left_out_error_is_split_by_contact_over_every_step(run_dir: Path) -
         total[0] += float(np.sum((env.data.qvel[6 : env.nv] - env.scheduler.frame(0).qvel[6:])[mask] ** 2))
         steps[0] += 1
 
-    xe.run_episode(env, eval_core.make_policy(loaded, env.obs_dim, env.act_dim), "humanoid3d_walk", 0.0, "per_term", 0,
+    xe.run_episode(env, checkpoint.make_policy(loaded, env.obs_dim, env.act_dim), "humanoid3d_walk", 0.0, "per_term", 0,
                    on_step=hook)
     assert probe.dof_steps[True] + probe.dof_steps[False] == 6 * steps[0] > 0
     assert probe.dof_steps[True] > 0  # the walk puts a foot on the floor

@@ -1,7 +1,7 @@
-"""Evaluation building blocks: load a checkpoint into a policy, draw the evaluation shapes, run
-deterministic episodes (Won & Lee 2019 protocol: random shapes from a fixed seed, 30 s
-episodes; task achievement = cumulative task reward R_task, fall-down = episodes that end in a
-fall). No plotting and no CLI here (evaluate.py, morph_demo.py, ablation.py use it).
+"""The shape controllers' evaluation (Won & Lee 2019 protocol: random shapes from a fixed seed,
+30 s episodes; task achievement = cumulative task reward R_task, fall-down = episodes that end in
+a fall): draw the shapes, run deterministic episodes, summarize them. No plotting and no CLI
+here (`shape/evaluate.py`, `shape/morph_demo.py`, `shape/ablation.py` use it).
 """
 
 from __future__ import annotations
@@ -13,10 +13,6 @@ from common.offscreen_gl import choose_offscreen_gl  # noqa: E402
 choose_offscreen_gl()
 
 import dataclasses
-import json
-import multiprocessing
-from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
@@ -24,99 +20,10 @@ import torch
 
 from common.motion.check import body_clearance, root_bob
 from common.policy import GaussianPolicy
-from common.tasks.base import TaskConfig
 from common.tasks.registry import make_env
 from learner import checkpoint
-from learner.config import RunConfig
+from learner.evaluation.harness import eval_task, run_jobs
 from learner.evaluation.shape.swim_metrics import SwimTracker, summarize_swim
-
-
-@dataclass(frozen=True)
-class Loaded:
-    """A checkpoint ready to run: its resolved run config, the raw state and where it came from."""
-
-    cfg: RunConfig
-    state: dict[str, Any]
-    path: Path
-
-    @property
-    def name(self) -> str:
-        return self.cfg.name
-
-
-def resolve(path: str | Path) -> Path:
-    """A checkpoint directory (with state.pt), a state.pt file, a run directory (its newest
-    `ckpt/<it>/`) or a shipped `learner/pretrained/<name>` -> the state.pt file."""
-    p = Path(path)
-    if p.is_file():
-        return p
-    if (p / checkpoint.FILE).is_file():
-        return p / checkpoint.FILE
-    found = checkpoint.list_checkpoints(p / "ckpt")
-    if found:
-        return found[-1] / checkpoint.FILE
-    raise SystemExit(f"--checkpoint {path}: no state.pt there, nor a run directory with ckpt/<iteration>/state.pt")
-
-
-def load(path: str | Path) -> Loaded:
-    file = resolve(path)
-    try:
-        state = checkpoint.load(file)
-    except checkpoint.CheckpointError as exc:
-        raise SystemExit(str(exc)) from None
-    if "config" not in state or "policy" not in state:
-        raise SystemExit(f"{file} holds no 'config'/'policy': not a morphmimic training checkpoint")
-    try:
-        cfg = RunConfig.from_json(str(state["config"]))
-        if cfg.task.name == "executor":  # its named clips must play on the humanoid
-            from common.tasks.executor.env import labelled_clips
-
-            labelled_clips(cfg.task)
-    except ValueError as exc:
-        raise SystemExit(f"{file}: its saved configuration is refused: {exc}") from None
-    return Loaded(cfg, state, file)
-
-
-def check_box_scale(box_scale: float) -> float:
-    """`box_scale` if it is in (0, 1], else ValueError naming it and the range."""
-    if not 0.0 < box_scale <= 1.0:
-        raise ValueError(f"box scale {box_scale:g} must be in (0, 1] (1: the whole box, the paper's protocol)")
-    return box_scale
-
-
-def eval_task(cfg: TaskConfig, episode_s: float, box_scale: float = 1.0) -> TaskConfig:
-    """The task as evaluated: every shape of the parameterization (even for a checkpoint trained
-    on one shape or a shrunken box), a fixed start at phase 0, the given horizon. `box_scale` < 1
-    evaluates on the box shrunk toward the base shape instead (a curriculum's progress; not the
-    paper's protocol)."""
-    check_box_scale(box_scale)
-    return dataclasses.replace(cfg, episode_s=episode_s,
-                               body=dataclasses.replace(cfg.body, vary_shape=True, shape_box_scale=box_scale),
-                               imitate=dataclasses.replace(cfg.imitate, random_start_phase=False))
-
-
-def make_policy(loaded: Loaded, obs_dim: int, act_dim: int) -> GaussianPolicy:
-    policy = GaussianPolicy(obs_dim, act_dim, loaded.cfg.policy)
-    try:
-        policy.load_state_dict(loaded.state["policy"])
-    except (RuntimeError, TypeError, AttributeError) as exc:  # wrong shapes or keys; not a state dict at all
-        raise SystemExit(f"{loaded.path}: the policy does not fit task {loaded.cfg.task.name!r} as this code builds it "
-                         f"(obs {obs_dim}, act {act_dim}): {exc}") from None
-    policy.eval()
-    return policy
-
-
-class ZeroPolicy:
-    """Acts with zero actions, the baseline a trained policy is measured against: for a PD task
-    the character's PD on the reference itself (a zero deviation from the target pose), for a
-    torque task no torque."""
-
-    def __init__(self, act_dim: int) -> None:
-        self.act_dim = int(act_dim)
-
-    def act(self, obs_raw: np.ndarray, deterministic: bool = True) -> tuple[np.ndarray, np.ndarray]:
-        n = len(obs_raw)
-        return np.zeros((n, self.act_dim), np.float32), np.zeros(n, np.float32)
 
 
 def eval_shapes(space, n: int, seed: int) -> np.ndarray:
@@ -248,12 +155,12 @@ _WORKER: dict[str, Any] = {}
 
 def _init_worker(state_file: str, imitate_overrides: dict, episode_s: float, box_scale: float) -> None:
     torch.set_num_threads(1)
-    loaded = load(state_file)
+    loaded = checkpoint.load_trained(state_file)
     cfg = loaded.cfg.task
     task = eval_task(dataclasses.replace(cfg, imitate=dataclasses.replace(cfg.imitate, **imitate_overrides)),
                      episode_s, box_scale)
     env = make_env(task, seed=0)
-    _WORKER.update(env=env, policy=make_policy(loaded, env.obs_dim, env.act_dim))
+    _WORKER.update(env=env, policy=checkpoint.make_policy(loaded, env.obs_dim, env.act_dim))
 
 
 def _work(job: tuple[int, np.ndarray, int]) -> dict[str, Any]:
@@ -262,7 +169,7 @@ def _work(job: tuple[int, np.ndarray, int]) -> dict[str, Any]:
     return {"index": i, "params": [float(x) for x in params], **out}
 
 
-def evaluate(loaded: Loaded, shapes: np.ndarray, episode_s: float, seed: int, workers: int = 1,
+def evaluate(loaded: checkpoint.Loaded, shapes: np.ndarray, episode_s: float, seed: int, workers: int = 1,
              progress: Callable[[int, int], None] | None = None, imitate_overrides: dict | None = None,
              box_scale: float = 1.0) -> list[dict]:
     """Run one episode per row of `shapes` (inside the box `eval_task(..., box_scale)` accepts);
@@ -271,28 +178,6 @@ def evaluate(loaded: Loaded, shapes: np.ndarray, episode_s: float, seed: int, wo
     jobs = [(i, shapes[i], seed + i) for i in range(len(shapes))]
     init = (str(loaded.path), dict(imitate_overrides or {}), episode_s, box_scale)
     return run_jobs(_init_worker, init, _work, jobs, workers, progress)
-
-
-def run_jobs(init: Callable, init_args: tuple, work: Callable[[Any], dict], jobs: list, workers: int,
-             progress: Callable[[int, int], None] | None = None) -> list[dict]:
-    """`work(job)` for every job, in this process (`workers` <= 1) or in a pool of forked
-    processes each set up once by `init(*init_args)`; results (dicts with an "index") sorted by
-    their index. `progress(done, total)` is called after each job."""
-    results: list[dict] = []
-    if workers <= 1:
-        init(*init_args)
-        for job in jobs:
-            results.append(work(job))
-            if progress:
-                progress(len(results), len(jobs))
-    else:
-        ctx = multiprocessing.get_context("fork")
-        with ctx.Pool(min(workers, len(jobs)), initializer=init, initargs=init_args) as pool:
-            for res in pool.imap_unordered(work, jobs):
-                results.append(res)
-                if progress:
-                    progress(len(results), len(jobs))
-    return sorted(results, key=lambda r: r["index"])
 
 
 def summarize(results: list[dict], space, n_shape: int) -> dict[str, Any]:
@@ -322,35 +207,3 @@ def summarize(results: list[dict], space, n_shape: int) -> dict[str, Any]:
         "falls_by_ref_clearance": falls_by_clearance(results),
         **summarize_swim(results),
     }
-
-
-EXECUTOR_ONLY_OPTIONS = ("--clips", "--starts", "--zero-action", "--set")
-"""Options only the motion executor's evaluation commands take."""
-
-
-def names_executor(argv: list[str], checkpoint_option: str) -> bool:
-    """Whether an evaluation command's arguments are for a motion executor: they use an
-    executor-only option, or the (first) checkpoint given by `checkpoint_option` is one. A
-    checkpoint that cannot be loaded answers False (the shape command then reports it)."""
-    if any(a.split("=", 1)[0] in EXECUTOR_ONLY_OPTIONS for a in argv):
-        return True
-    import argparse
-
-    pre = argparse.ArgumentParser(add_help=False)
-    pre.add_argument(checkpoint_option, nargs="+", default=[])
-    known, _ = pre.parse_known_args(argv)
-    paths = getattr(known, checkpoint_option.lstrip("-").replace("-", "_"))
-    if not paths:
-        return False
-    try:
-        return load(paths[0]).cfg.task.name == "executor"
-    except SystemExit:
-        return False
-
-
-def write_ablation(out: Path, text: str, arms: list[dict[str, Any]]) -> None:
-    """An ablation command's outputs: the markdown table `out/ablation.md`, one JSON entry per
-    arm in `out/ablation.json`, and the table printed."""
-    (out / "ablation.md").write_text(text)
-    (out / "ablation.json").write_text(json.dumps(arms, indent=1) + "\n")
-    print(text)
