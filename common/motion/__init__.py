@@ -15,10 +15,6 @@ drifting floor), qpos_map (clip -> a model's qpos), reference (CharacterMotion),
 root_height: where the feet are, the root-height rules; leg_solve: the leg pose solve), procedural, manifest, check, view, cli.
 """
 
-from common.offscreen_gl import choose_offscreen_gl
-
-choose_offscreen_gl()  # NOTE: before the first `import mujoco`: `view` renders offscreen.
-
 from common.motion.clip import Clip, load_clip  # noqa: E402
 from common.motion.errors import ClipError  # noqa: E402
 from common.motion.cross_skeleton import retarget_bvh  # noqa: E402

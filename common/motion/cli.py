@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common.motion.errors import ClipError  # importing common.motion sets MUJOCO_GL=egl if unset
+from common.motion.errors import ClipError
 from common.motion.root_height import ROOT_HEIGHT_RULES
 
 

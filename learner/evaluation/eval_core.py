@@ -6,12 +6,6 @@ fall). No plotting and no CLI here (evaluate.py, morph_demo.py, ablation.py use 
 
 from __future__ import annotations
 
-
-# NOTE: before anything imports mujoco: it picks its GL backend once; EGL renders headless here.
-from common.offscreen_gl import choose_offscreen_gl  # noqa: E402
-
-choose_offscreen_gl()
-
 import dataclasses
 import json
 import multiprocessing

@@ -18,11 +18,6 @@ per clip instead: `learner/evaluation/executor/report.py` (UniCon's protocol, ME
 
 from __future__ import annotations
 
-import os
-
-# NOTE: before anything imports mujoco: it picks its GL backend once; EGL renders headless here.
-os.environ.setdefault("MUJOCO_GL", "egl")
-
 import argparse
 import json
 import sys

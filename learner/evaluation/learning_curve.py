@@ -25,8 +25,6 @@ import json
 import os
 from pathlib import Path
 
-os.environ.setdefault("MUJOCO_GL", "egl")
-
 import numpy as np  # noqa: E402
 
 from learner import checkpoint
