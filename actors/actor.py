@@ -23,7 +23,7 @@ from actors.rollout import RolloutWorker, configure_torch
 from actors.seq_ledger import SeqLedger
 from actors.weights_client import WeightsClient
 from common import sockets, wire
-from common.curve import RunKeys
+from common.curve_keys import RunKeys
 from common.policy import PolicyConfig
 from common.tasks.base import TaskConfig
 from common.tasks.registry import task_space

@@ -87,9 +87,10 @@ class RolloutWorker:
                 o, r, term, trunc, info = env.step(act[i])
                 diverged = bool(info.get("diverged")) or not np.isfinite(o).all() or not np.isfinite(r)
                 if diverged:
-                    # The simulator failed: the episode ends with no future (METHOD.md A lists
-                    # simulation failure with the falls among the terminations), so the policy
-                    # learns to avoid what blows the simulation up rather than being paid its value.
+                    # The simulator failed: the episode terminates with reward 0 (as the tasks'
+                    # `diverged_step`), so the policy learns to avoid what blows the simulation up
+                    # rather than being paid its value. The guard also covers a non-finite
+                    # observation or reward a task did not flag; next_obs keeps the last good one.
                     divergences += 1
                     o, r, term, trunc = self._obs[i], 0.0, True, False
                 next_obs[t, i] = o

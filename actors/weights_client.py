@@ -14,7 +14,7 @@ from typing import Callable
 import zmq
 
 from common import sockets, wire
-from common.curve import RunKeys
+from common.curve_keys import RunKeys
 
 log = logging.getLogger(__name__)
 

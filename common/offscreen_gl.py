@@ -1,14 +1,16 @@
-"""Pick MuJoCo's offscreen OpenGL backend from what this machine has.
+"""Pick MuJoCo's offscreen OpenGL backend from what this machine has, right before a renderer is
+made, whatever was imported first.
 
-MuJoCo chooses its GL backend from `MUJOCO_GL` when it is first imported, and with
-`MUJOCO_GL=osmesa` or `egl` that import itself fails when the library is missing. Ray workers
-inherit the driver's environment, so a wrong default set by one module used to kill every
-rollout actor of `python -m learner.main` on a machine without libOSMesa. The rules:
+`import mujoco` reads `MUJOCO_GL` once and keeps the matching `GLContext` class in
+`mujoco.rendering.classic.gl_context` (GLFW when it is unset); `mujoco.Renderer` looks that
+class up each time one is made. So every renderer of the project is made right after
+`use_offscreen_context()`, which sets `MUJOCO_GL` if it is unset and, if mujoco was imported
+before that, swaps in the chosen backend's `GLContext`. The rules:
 
 - an explicit `MUJOCO_GL` always wins (the user's choice);
 - with a display, nothing is set (MuJoCo uses GLFW);
 - without one, EGL if `libEGL` is installed (Mesa's EGL renders headless), else OSMesa if
-  `libOSMesa` is, else nothing: simulation works and only rendering reports a missing GL.
+  `libOSMesa` is, else nothing: simulation works and rendering raises, naming what to install.
 """
 
 from __future__ import annotations
@@ -28,8 +30,8 @@ def available_backend() -> str | None:
 
 
 def choose_offscreen_gl() -> str | None:
-    """Set `MUJOCO_GL` (and PyOpenGL's platform) for a headless machine, before mujoco's first
-    import; returns the backend in effect (None: GLFW or none)."""
+    """Set `MUJOCO_GL` (and PyOpenGL's platform) for a headless machine if it is unset; returns
+    the backend in effect (None: GLFW or none)."""
     if "MUJOCO_GL" in os.environ:
         return os.environ["MUJOCO_GL"]
     if os.environ.get("DISPLAY"):
@@ -41,20 +43,26 @@ def choose_offscreen_gl() -> str | None:
     return backend
 
 
-def use_offscreen_context() -> None:
-    """For a process that imported mujoco before `choose_offscreen_gl` ran (mujoco then picked
-    GLFW) and has no display: point mujoco's renderer at the available offscreen context."""
+def use_offscreen_context() -> str | None:
+    """Make the next `mujoco.Renderer` use the backend `choose_offscreen_gl` picks, whether mujoco
+    was imported before or after; returns that backend (None: GLFW). Call it right before
+    making a renderer. RuntimeError when there is neither a display nor an offscreen GL."""
+    chosen = choose_offscreen_gl()
+    backend = chosen.strip().lower() if chosen else None
     import mujoco.rendering.classic.gl_context as gl_context
 
-    if os.environ.get("DISPLAY") or getattr(gl_context, "_MUJOCO_GL", "x") not in ("", "glfw"):
-        return
-    backend = available_backend()
-    if backend is None:
+    if backend is None and not os.environ.get("DISPLAY"):
         raise RuntimeError("no display and no offscreen OpenGL: install Mesa's EGL (Debian: libegl1 libegl-mesa0 "
                            "libgl1-mesa-dri) or libosmesa6, or set MUJOCO_GL")
+    if backend not in ("egl", "osmesa"):
+        return chosen
+    if getattr(getattr(gl_context, "GLContext", None), "__module__", None) == f"mujoco.{backend}":
+        return backend  # mujoco was imported after the choice and took it
+    # mujoco was imported before MUJOCO_GL was set and took GLFW: swap in the offscreen context
     os.environ["PYOPENGL_PLATFORM"] = backend
     if backend == "egl":
         from mujoco.egl import GLContext
     else:
         from mujoco.osmesa import GLContext
     gl_context.GLContext = GLContext
+    return backend

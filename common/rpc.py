@@ -14,8 +14,8 @@ from typing import Any, Callable
 
 import zmq
 
-from common import curve, sockets, wire
-from common.curve import ACTOR, RefusalCounter, RunKeys
+from common import curve_keys, sockets, wire
+from common.curve_keys import ACTOR, RefusalCounter, RunKeys
 
 log = logging.getLogger(__name__)
 
@@ -115,7 +115,7 @@ class RouterServer:
             body = frames[2:] if len(frames) > 1 and len(frames[1].bytes) == 0 else frames[1:]
             try:
                 request = wire.decode(body, dims=self.dims)
-                self._check_role(request, curve.role_of(frames[0]))
+                self._check_role(request, curve_keys.role_of(frames[0]))
                 wire.check_finite(request)
                 reply = wire.encode(self.handler(request))
             except Exception as exc:  # noqa: BLE001 - nothing a peer sends may stop the service

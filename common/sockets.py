@@ -1,9 +1,10 @@
 """Every ZeroMQ socket of the system is made here, with its high-water mark, LINGER and what
 it loses when a limit is hit written beside the option.
 
-Every function takes the run's CURVE keys (`common.curve.RunKeys`; None: no authentication, for
-tests of the codec alone and `--no-curve`): a bound socket becomes a CURVE server that admits
-only this run's clients, a connecting one a client in its role (`curve.ACTOR` or `curve.LEARNER`).
+Every function takes the run's CURVE keys (`common.curve_keys.RunKeys`; None: no
+authentication, for tests of the codec alone and `--no-curve`): a bound socket becomes a CURVE
+server that admits only this run's clients, a connecting one a client in its role
+(`curve_keys.ACTOR` or `curve_keys.LEARNER`).
 
 Patterns (DESIGN.md "Data flows"):
     unrolls   actor PUSH  -> learner PULL (learner binds)
@@ -15,8 +16,8 @@ from __future__ import annotations
 
 import zmq
 
-from common import curve
-from common.curve import ACTOR, RunKeys
+from common import curve_keys
+from common.curve_keys import ACTOR, RunKeys
 
 UNROLL_SEND_HWM = 4
 """Unrolls an actor may queue before `send` blocks: backpressure slows collection, loses nothing."""
@@ -56,7 +57,7 @@ def _bind(sock: zmq.Socket, address: str) -> str:
 def bind_unroll_pull(address: str, keys: RunKeys | None = None) -> tuple[zmq.Socket, str]:
     """Learner side of the unroll stream."""
     sock = context().socket(zmq.PULL)
-    curve.make_server(sock, keys)
+    curve_keys.make_server(sock, keys)
     sock.setsockopt(zmq.RCVHWM, UNROLL_RECV_HWM)
     sock.setsockopt(zmq.MAXMSGSIZE, 256 * 1024 * 1024)  # a larger frame drops that peer's connection
     sock.setsockopt(zmq.LINGER, LINGER_MS)
@@ -67,7 +68,7 @@ def connect_unroll_push(endpoint_: str, keys: RunKeys | None = None) -> zmq.Sock
     """Actor side of the unroll stream. `send` blocks when the learner falls behind (backpressure);
     callers use a send timeout so a vanished learner cannot hang an actor forever."""
     sock = context().socket(zmq.PUSH)
-    curve.make_client(sock, keys, ACTOR)
+    curve_keys.make_client(sock, keys, ACTOR)
     sock.setsockopt(zmq.SNDHWM, UNROLL_SEND_HWM)
     sock.setsockopt(zmq.LINGER, LINGER_MS)
     sock.setsockopt(zmq.SNDTIMEO, 5000)  # a blocked send raises zmq.Again after 5 s: counted, retried
@@ -79,7 +80,7 @@ def connect_unroll_push(endpoint_: str, keys: RunKeys | None = None) -> zmq.Sock
 def bind_weights_pub(address: str, keys: RunKeys | None = None) -> tuple[zmq.Socket, str]:
     """Learner publishes weights; slow joiners miss messages, hence the snapshot ROUTER."""
     sock = context().socket(zmq.PUB)
-    curve.make_server(sock, keys)
+    curve_keys.make_server(sock, keys)
     sock.setsockopt(zmq.SNDHWM, WEIGHTS_HWM)
     sock.setsockopt(zmq.LINGER, LINGER_MS)
     return sock, _bind(sock, address)
@@ -87,7 +88,7 @@ def bind_weights_pub(address: str, keys: RunKeys | None = None) -> tuple[zmq.Soc
 
 def connect_weights_sub(endpoint_: str, keys: RunKeys | None = None) -> zmq.Socket:
     sock = context().socket(zmq.SUB)
-    curve.make_client(sock, keys, ACTOR)
+    curve_keys.make_client(sock, keys, ACTOR)
     sock.setsockopt(zmq.RCVHWM, WEIGHTS_HWM)
     sock.setsockopt(zmq.LINGER, LINGER_MS)
     sock.setsockopt(zmq.SUBSCRIBE, b"")
@@ -98,7 +99,7 @@ def connect_weights_sub(endpoint_: str, keys: RunKeys | None = None) -> zmq.Sock
 def bind_router(address: str, keys: RunKeys | None = None) -> tuple[zmq.Socket, str]:
     """A request/reply service (the learner's weight snapshots, the sampler)."""
     sock = context().socket(zmq.ROUTER)
-    curve.make_server(sock, keys)
+    curve_keys.make_server(sock, keys)
     sock.setsockopt(zmq.ROUTER_MANDATORY, 1)  # reply to a vanished peer raises EHOSTUNREACH instead of vanishing
     sock.setsockopt(zmq.SNDHWM, ROUTER_HWM)
     sock.setsockopt(zmq.RCVHWM, ROUTER_HWM)
@@ -112,7 +113,7 @@ def connect_dealer(endpoint_: str, keys: RunKeys | None = None, role: str = ACTO
     closes this socket and makes a new one, so a lost request or a restarted service cannot
     wedge it."""
     sock = context().socket(zmq.DEALER)
-    curve.make_client(sock, keys, role)
+    curve_keys.make_client(sock, keys, role)
     sock.setsockopt(zmq.SNDHWM, ROUTER_HWM)
     sock.setsockopt(zmq.RCVHWM, ROUTER_HWM)
     sock.setsockopt(zmq.LINGER, LINGER_MS)

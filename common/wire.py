@@ -140,15 +140,16 @@ class UnrollMsg:
     actions: np.ndarray = field(metadata=rule(shape=("T", "N", "act_dim"), dtypes=F32))  # pre-squash Gaussian samples
     logp: np.ndarray = field(metadata=rule(shape=("T", "N"), dtypes=F32))  # behaviour log-probability of `actions`
     rewards: np.ndarray = field(metadata=rule(shape=("T", "N"), dtypes=F32))
-    terminated: np.ndarray = field(metadata=rule(shape=("T", "N"), dtypes=BOOL))  # no bootstrap (fall, task end)
-    truncated: np.ndarray = field(metadata=rule(shape=("T", "N"), dtypes=BOOL))  # bootstrap from next_obs
+    terminated: np.ndarray = field(metadata=rule(shape=("T", "N"), dtypes=BOOL))  # no bootstrap (fall, task end, divergence)
+    truncated: np.ndarray = field(metadata=rule(shape=("T", "N"), dtypes=BOOL))  # bootstrap from next_obs (time limit)
     params: np.ndarray = field(metadata=rule(shape=("T", "N", "n_params"), dtypes=F32))
     """The episode's sampled task/shape parameters."""
     episode_returns: list[float] = field(default_factory=list, metadata=rule(length="episodes"))
     """Undiscounted returns of the episodes that ended inside this unroll."""
     episode_lengths: list[int] = field(default_factory=list, metadata=rule(ge=1, length="episodes"))
     divergences: int = field(default=0, metadata=rule(ge=0))
-    """Episodes truncated in this unroll because MuJoCo reported a divergence warning."""
+    """Episodes that ended in this unroll because the simulation diverged (a MuJoCo divergence
+    warning, or a non-finite observation or reward); each is also a `terminated` step."""
     sampler_outages: int = field(default=0, metadata=rule(ge=0))
     """Draws that fell back to the previous parameters because the sampler did not answer."""
     segment_clips: list[str] = field(default_factory=list, metadata=rule(length="segments", empty_ok=True, max_len=MAX_KEY))

@@ -8,7 +8,7 @@ import logging
 from typing import Protocol
 
 from actors.actor import RolloutActor
-from common.curve import RunKeys
+from common.curve_keys import RunKeys
 from learner.config import RunConfig
 
 log = logging.getLogger(__name__)

@@ -108,7 +108,7 @@ class RunConfig:
     curve: bool = True
     """Authenticate and encrypt every ZeroMQ socket with CURVE, with keys made for this run and
     handed to actors and sampler through Ray: a peer without them is refused and counted
-    (`common.curve`). `--no-curve` only to measure what it costs or to debug the wire."""
+    (`common.curve_keys`). `--no-curve` only to measure what it costs or to debug the wire."""
     learner: LearnerConfig = field(default_factory=LearnerConfig)
     task: TaskConfig = field(default_factory=TaskConfig)
     policy: PolicyConfig = field(default_factory=PolicyConfig)

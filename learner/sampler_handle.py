@@ -15,7 +15,7 @@ from typing import Any, Sequence
 import numpy as np
 import torch
 
-from common.curve import LEARNER, RunKeys
+from common.curve_keys import LEARNER, RunKeys
 from common.params import ParamSpace
 from common.rpc import ServiceUnavailable
 from common.wire import WireError

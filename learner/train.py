@@ -16,7 +16,7 @@ from typing import Callable, NoReturn
 
 import torch
 
-from common.curve import RunKeys
+from common.curve_keys import RunKeys
 from common.tasks.registry import task_clips, task_space
 from learner import checkpoint, cluster
 from learner.actor_pool import RayActorPool, SerialActorPool
@@ -93,7 +93,7 @@ class Run:
     health: HealthMonitor | None = None
     last_saved: int = -1
     keys: RunKeys | None = None
-    """This run's CURVE keys (`common.curve`), made at start; None with `--no-curve`."""
+    """This run's CURVE keys (`common.curve_keys`), made at start; None with `--no-curve`."""
 
     def save(self) -> None:
         state = self.learner.state_dict()

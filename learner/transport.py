@@ -22,7 +22,7 @@ from collections.abc import Callable
 import zmq
 
 from common import sockets, wire
-from common.curve import RefusalCounter, RunKeys
+from common.curve_keys import RefusalCounter, RunKeys
 from common.rpc import RouterServer
 
 log = logging.getLogger(__name__)
@@ -37,7 +37,7 @@ class LearnerTransport:
         and come (like a heartbeat) from an actor id in `[0, num_actors)`: anything else is a
         counted rejection, never a new actor in the health counters. `keys`: the run's CURVE
         keys; with them every socket admits only this run's clients, and a peer the handshake
-        refuses is counted as `rejected/auth_*` (`common.curve`)."""
+        refuses is counted as `rejected/auth_*` (`common.curve_keys`)."""
         addr = lambda i: f"tcp://{host}:{port_base + i}" if port_base else f"tcp://{host}"  # noqa: E731
         self.pull, unrolls = sockets.bind_unroll_pull(addr(0), keys)
         self.pub, weights_pub = sockets.bind_weights_pub(addr(1), keys)

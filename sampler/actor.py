@@ -19,7 +19,7 @@ import dataclasses
 import threading
 from typing import Sequence
 
-from common.curve import RunKeys
+from common.curve_keys import RunKeys
 from common.params import ParamSpace
 from sampler.config import SamplerConfig
 from sampler.service import SamplerService

@@ -14,7 +14,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from common import wire
-from common.curve import ACTOR, RunKeys
+from common.curve_keys import ACTOR, RunKeys
 from common.rpc import RpcClient, ServiceUnavailable
 
 __all__ = ["Draws", "SamplerClient", "ServiceUnavailable"]

@@ -33,7 +33,7 @@ import numpy as np
 import zmq
 
 from common import sockets, wire
-from common.curve import LEARNER, RunKeys
+from common.curve_keys import LEARNER, RunKeys
 from common.params import ParamSpace
 from common.rpc import RouterServer
 from sampler.config import SamplerConfig

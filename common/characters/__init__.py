@@ -9,10 +9,6 @@ Presets: humanoid (DeepMimic), biped (MASS 19 segments), lower_biped, quadruped,
 any MJCF with a free root as "mjcf:/path/to/file.xml". See character.py for the fields.
 """
 
-from common.offscreen_gl import choose_offscreen_gl
-
-choose_offscreen_gl()  # NOTE: must precede the first `import mujoco` to take effect.
-
 from common.characters.character import (DEFAULT_TIMESTEP_S, Character, CharacterFactory, base_character, list_presets,
                                         load_character)
 from common.characters.errors import ShapeError

@@ -1,15 +1,16 @@
 """Offscreen PNG of a character with MuJoCo's renderer.
 
 A machine without a display needs an offscreen GL: `MUJOCO_GL=egl` (GPU or Mesa's EGL;
-packages libegl1 + libgl1-mesa-dri) or `MUJOCO_GL=osmesa` (software; package libosmesa6),
-chosen before mujoco is imported; `common.offscreen_gl` picks whichever this machine has.
+packages libegl1 + libgl1-mesa-dri) or `MUJOCO_GL=osmesa` (software; package libosmesa6);
+`common.offscreen_gl.use_offscreen_context` picks whichever this machine has, right before the
+renderer is made.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from common.offscreen_gl import choose_offscreen_gl, use_offscreen_context
+from common.offscreen_gl import use_offscreen_context
 
 
 def render_png(ch, path: str | Path | None = None, data=None, width: int = 640, height: int = 480,
@@ -17,7 +18,6 @@ def render_png(ch, path: str | Path | None = None, data=None, width: int = 640, 
     """Render `ch` (a Character) at `data` (default: its standing pose) from a free camera that
     frames the whole body (elevation default: -15 deg, -35 for swimmers so their flat bodies
     show); write a PNG to `path` if given. Returns the image [H, W, 3] uint8."""
-    choose_offscreen_gl()
     import imageio.v3 as iio
     import mujoco
     import numpy as np

@@ -17,10 +17,6 @@ balancer (UniCon's class-tree clip probabilities) and clip_manager (which clip a
 environment plays: every clip draw goes through a `ClipManager`).
 """
 
-from common.offscreen_gl import choose_offscreen_gl
-
-choose_offscreen_gl()  # NOTE: before the first `import mujoco`: `view` renders offscreen.
-
 from common.motion.clip import Clip, load_clip  # noqa: E402
 from common.motion.errors import ClipError  # noqa: E402
 from common.motion.cross_skeleton import retarget_bvh  # noqa: E402

@@ -2,9 +2,9 @@
 
 Kinematic replay: the reference qpos is set and `mj_kinematics` run, no physics, so what the
 picture shows is exactly the reference a controller is asked to track. Rendering uses
-`mujoco.Renderer` offscreen (needs MUJOCO_GL=egl or osmesa without a display; `cli.py` sets
-egl when unset) and imageio to write files: `.png` (a strip of frames side by side) or `.gif`
-(an animation; `.mp4` needs the imageio-ffmpeg plugin).
+`mujoco.Renderer` offscreen (without a display, the EGL or OSMesa this machine has, picked by
+`common.offscreen_gl.use_offscreen_context`) and imageio to write files: `.png` (a strip of
+frames side by side) or `.gif` (an animation; `.mp4` needs the imageio-ffmpeg plugin).
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ import mujoco
 import numpy as np
 
 from common.motion.reference import CharacterMotion
+from common.offscreen_gl import use_offscreen_context
 
 
 def _camera(motion: CharacterMotion, qpos: np.ndarray, distance_m: float) -> mujoco.MjvCamera:
@@ -44,6 +45,7 @@ def render_frames(motion: CharacterMotion, times_s: np.ndarray, width: int = 320
         mujoco.mj_kinematics(model, data)
         distance_m = 2.2 * max(1.0, float(np.ptp(data.xpos[1:, 2])) + 0.4)
     images = []
+    use_offscreen_context()
     with mujoco.Renderer(model, height, width) as renderer:
         opt = mujoco.MjvOption()
         for qpos in qpos_all:

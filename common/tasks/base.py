@@ -2,8 +2,11 @@
 
 Gymnasium-style: `reset(seed, params, clip_id) -> (obs, info)` and
 `step(action) -> (obs, reward, terminated, truncated, info)`. `terminated` means the episode
-really ended (no bootstrap: a fall); `truncated` means it was cut (time limit, simulator
-divergence: bootstrap from the last observation). The two stay apart all the way into GAE.
+really ended (no bootstrap: a fall, a task's own end, a simulator divergence); `truncated` means
+it was cut (the time limit: bootstrap from the last observation). The two stay apart all the
+way into GAE. A divergence terminates because its next state is garbage to bootstrap from and
+the policy's actions are what blow the simulation up (METHOD.md A lists simulation failure
+among the terminations): every task returns `diverged_step(...)` for it.
 """
 
 from __future__ import annotations
@@ -88,10 +91,17 @@ def step_physics(model: mujoco.MjModel, data: mujoco.MjData, substeps: int) -> b
     """Advance `substeps` physics steps; return True if MuJoCo diverged.
 
     NOTE: MuJoCo resets `MjData` silently when the state blows up; the only trace is the
-    warning counters, so they are compared before and after (DESIGN.md "Environments").
+    warning counters, so they are compared before and after.
     """
     # NOTE: the counters are read as one array (`warning.number`), not one wrapper per warning.
     before = int(data.warning.number[_DIVERGENCE_WARNINGS].sum())
     mujoco.mj_step(model, data, nstep=substeps)
     after = int(data.warning.number[_DIVERGENCE_WARNINGS].sum())
     return after != before or not np.isfinite(data.qpos).all()
+
+
+def diverged_step(obs_dim: int, **info: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+    """What a task's `step` returns when `step_physics` reported a divergence: terminated, not
+    truncated (no bootstrap), reward 0, a zero observation (the state is garbage) and `info`
+    with `diverged=True`, `fell=False` (a divergence is counted apart from falls) and `info`."""
+    return np.zeros(obs_dim, np.float32), 0.0, True, False, {"diverged": True, "fell": False, **info}

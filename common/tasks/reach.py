@@ -18,7 +18,7 @@ import mujoco
 import numpy as np
 
 from common.params import ParamSpace
-from common.tasks.base import TaskConfig, step_physics
+from common.tasks.base import TaskConfig, diverged_step, step_physics
 
 LINK_M = (0.12, 0.12)
 """Link lengths in metres; the reach radius is their sum."""
@@ -103,8 +103,10 @@ class ReachEnv:
         self.data.ctrl[:] = ctrl
         diverged = step_physics(self.model, self.data, self.substeps)
         self.t += 1
+        if diverged:
+            return diverged_step(self.obs_dim)
         obs = self._obs()
         dist = float(np.linalg.norm(obs[6:8] - self.target))
         reward = math.exp(-dist / REWARD_SCALE_M) - EFFORT_COST * float(np.square(ctrl).sum())
-        truncated = diverged or self.t >= self.cfg.episode_steps
-        return obs, reward, False, truncated, {"diverged": diverged, "distance_m": dist}
+        truncated = self.t >= self.cfg.episode_steps
+        return obs, reward, False, truncated, {"diverged": False, "distance_m": dist}

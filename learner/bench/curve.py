@@ -3,7 +3,7 @@
 Two things in one run, interleaved round by round so that both see the same machine: the unroll
 stream (an actor's PUSH to the learner's PULL on 127.0.0.1, messages shaped like a preset's
 unrolls) and a sampler-sized request/reply round trip (DEALER to ROUTER), each once over plain
-sockets and once with the run's CURVE keys (`common.curve`). Prints MB/s and round trips per
+sockets and once with the run's CURVE keys (`common.curve_keys`). Prints MB/s and round trips per
 second for both and their ratio; the end-to-end effect on training is
 `morphmimic bench throughput` against `morphmimic bench throughput --no-curve`.
 """
@@ -20,7 +20,7 @@ import zmq
 
 from common import sockets, wire
 from common.config_limits import Limit, at_least, check_limits, validated
-from common.curve import LEARNER, RunKeys
+from common.curve_keys import LEARNER, RunKeys
 from learner.cli_options import parse_options
 from learner.presets import PRESETS, check_presets
 

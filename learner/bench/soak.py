@@ -26,7 +26,7 @@ from typing import ClassVar
 import numpy as np
 import zmq
 
-from common import curve
+from common import curve_keys
 from common.config_limits import SEED, Limit, above, between, check_limits, validated
 from learner.cli_options import parse_options
 from learner.presets import PRESETS, check_presets
@@ -81,7 +81,7 @@ def main(argv: list[str]) -> int:
         """Random bytes from an insider (the run's actor keys: the codec refuses them) or an
         outsider (no keys: the CURVE handshake refuses it)."""
         sock = zmq.Context.instance().socket(zmq.DEALER if router else zmq.PUSH)
-        curve.make_client(sock, keys, curve.ACTOR)
+        curve_keys.make_client(sock, keys, curve_keys.ACTOR)
         sock.setsockopt(zmq.LINGER, 500)
         sock.connect(endpoint)
         junk = [bytes(rng.integers(0, 256, size=int(rng.integers(1, 200)), dtype=np.uint8))]

@@ -59,9 +59,6 @@ def _parse_shape(text: str | None) -> dict[str, str]:
 
 
 def main(argv: list[str]) -> int:
-    from common.offscreen_gl import choose_offscreen_gl
-
-    choose_offscreen_gl()  # before mujoco is imported
     from common.characters import ShapeError, list_presets, load_character
     from common.characters.character import build_base
 

@@ -20,7 +20,7 @@ import tyro
 
 from common.config_limits import SEED, Limit, above, at_least, check_limits, validated
 
-from common.motion.errors import ClipError  # importing common.motion sets MUJOCO_GL=egl if unset
+from common.motion.errors import ClipError
 from common.motion.root_height import ROOT_HEIGHT_RULES
 from learner.cli_options import parse_options
 

@@ -28,8 +28,6 @@ from dataclasses import dataclass
 from typing import ClassVar
 from pathlib import Path
 
-os.environ.setdefault("MUJOCO_GL", "egl")
-
 import numpy as np  # noqa: E402
 
 from learner import checkpoint

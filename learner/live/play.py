@@ -19,11 +19,6 @@ second of video, each `--speed` x as much simulated time, so the file has second
 
 from __future__ import annotations
 
-import os
-
-# NOTE: before anything imports mujoco: it picks its GL backend once; EGL renders headless here.
-os.environ.setdefault("MUJOCO_GL", "egl")
-
 import argparse
 import math
 import sys

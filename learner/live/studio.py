@@ -24,12 +24,6 @@ status line while the simulation keeps going.
 
 from __future__ import annotations
 
-
-# NOTE: before anything imports mujoco (the session may render offscreen elsewhere in-process).
-from common.offscreen_gl import choose_offscreen_gl  # noqa: E402
-
-choose_offscreen_gl()
-
 import argparse
 import html
 import logging

@@ -14,7 +14,7 @@ import msgpack
 import numpy as np
 import zmq
 
-from common import curve, wire
+from common import curve_keys, wire
 from learner.presets import PRESETS
 from learner.train import Run, train
 from learner.transport import LearnerTransport
@@ -246,12 +246,12 @@ class LossyProxy:
         self.dropped_seqs: list[tuple[int, int]] = []
         ctx = zmq.Context.instance()
         self.front = ctx.socket(zmq.PULL)
-        curve.make_server(self.front, keys)
+        curve_keys.make_server(self.front, keys)
         self.front.setsockopt(zmq.LINGER, 0)
         port = self.front.bind_to_random_port("tcp://127.0.0.1")
         self.endpoint = f"tcp://127.0.0.1:{port}"
         self.back = ctx.socket(zmq.PUSH)
-        curve.make_client(self.back, keys.for_actors() if keys is not None else None, curve.ACTOR)
+        curve_keys.make_client(self.back, keys.for_actors() if keys is not None else None, curve_keys.ACTOR)
         self.back.setsockopt(zmq.LINGER, 2000)
         self.back.connect(learner_endpoint)
         self._stop = threading.Event()

@@ -47,7 +47,7 @@ from common.motion.mirror import MIRROR_SUFFIX, mirrored_id, source_id
 from common.motion.reference import CharacterMotion
 from common.params import ParamSpace
 from common.tasks.executor import rewards as rw
-from common.tasks.base import TaskConfig, step_physics
+from common.tasks.base import TaskConfig, diverged_step, step_physics
 from common.tasks.executor.observations import BodyKin, observation, read_kinematics
 from common.tasks.observations import JointLayout
 from common.tasks.executor.schedulers.base import DatasetScheduler, Scheduler, TargetFrame
@@ -396,7 +396,7 @@ class ExecutorEnv:
             self._expire_projectiles()
         if diverged:
             self._end_segment(False)
-            return np.zeros(self.obs_dim, np.float32), 0.0, True, False, {"diverged": True, "ended_by": "divergence"}
+            return diverged_step(self.obs_dim, ended_by="divergence")
         rescheduled = self.scheduler.advance(self.rng, self.qpos.copy())
         if rescheduled:
             self.grace = self.k + self.ex.catch_up_steps

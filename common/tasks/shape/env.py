@@ -17,7 +17,8 @@ and the clip phase (sin, cos).
 Reward: `rewards.py` (weights and sensitivities from METHOD.md A, reward normalization
 switchable: `TaskConfig.reward_normalization`). Termination: a fall (a floor contact of any
 body but the feet, or for swimmers a root further than `max_root_deviation` body lengths off
-the reference's course, sideways or vertically) terminates; the horizon (`episode_s`, 30 s) and simulator divergence truncate.
+the reference's course, sideways or vertically) and simulator divergence (`base.diverged_step`)
+terminate; the horizon (`episode_s`, 30 s) truncates.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ import numpy as np
 from common.characters import CharacterFactory, base_character
 from common.characters.operator import gains_follow_torque_limits
 from common.params import ParamSpace
-from common.tasks.base import TaskConfig, step_physics
+from common.tasks.base import TaskConfig, diverged_step, step_physics
 from common.tasks.observations import JointLayout, heading, quat_to_mat, root_frame_features, yaw_matrix
 from common.tasks.shape import references, rewards
 from common.tasks.shape.stroke_model import StrokeModel
@@ -414,7 +415,7 @@ class ImitateEnv:
         diverged = step_physics(self.model, self.data, self.cfg.substeps)
         self.k += 1
         if diverged:
-            return self._obs_safe(), 0.0, False, True, {"diverged": True}
+            return diverged_step(self.obs_dim)
         self.com_hist.append(self.data.subtree_com[self.root_body].copy())
         self._refresh_reference()
         body_frame = self._body_frame()

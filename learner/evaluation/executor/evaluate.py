@@ -31,10 +31,6 @@ twice the cost.
 
 from __future__ import annotations
 
-import os
-
-os.environ.setdefault("MUJOCO_GL", "egl")
-
 import dataclasses
 import json
 from collections import Counter, defaultdict

@@ -23,11 +23,6 @@ Prints one line per split and one overall.
 
 from __future__ import annotations
 
-
-from common.offscreen_gl import choose_offscreen_gl  # noqa: E402
-
-choose_offscreen_gl()
-
 import argparse
 import json
 import sys

@@ -39,10 +39,6 @@ paper's figures as a second line). Prints one line per row.
 
 from __future__ import annotations
 
-import os
-
-os.environ.setdefault("MUJOCO_GL", "egl")
-
 import argparse
 import dataclasses
 import math

@@ -6,12 +6,6 @@ here (`shape/evaluate.py`, `shape/morph_demo.py`, `shape/ablation.py` use it).
 
 from __future__ import annotations
 
-
-# NOTE: before anything imports mujoco: it picks its GL backend once; EGL renders headless here.
-from common.offscreen_gl import choose_offscreen_gl  # noqa: E402
-
-choose_offscreen_gl()
-
 import dataclasses
 from typing import Any, Callable
 

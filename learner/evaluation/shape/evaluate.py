@@ -18,11 +18,6 @@ a motion executor's is evaluated per clip by `learner/evaluation/executor/report
 
 from __future__ import annotations
 
-import os
-
-# NOTE: before anything imports mujoco: it picks its GL backend once; EGL renders headless here.
-os.environ.setdefault("MUJOCO_GL", "egl")
-
 import argparse
 import dataclasses
 import json

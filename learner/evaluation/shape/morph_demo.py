@@ -15,12 +15,6 @@ reference retargeted). Defaults per parameterization follow Figure 1: tall, then
 
 from __future__ import annotations
 
-
-# NOTE: before anything imports mujoco: it picks its GL backend once; EGL renders headless here.
-from common.offscreen_gl import choose_offscreen_gl  # noqa: E402
-
-choose_offscreen_gl()
-
 import argparse
 import json
 from pathlib import Path

@@ -8,9 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Sequence
 
-from common.offscreen_gl import choose_offscreen_gl, use_offscreen_context  # noqa: E402
-
-choose_offscreen_gl()
+from common.offscreen_gl import use_offscreen_context  # noqa: E402
 
 import matplotlib  # noqa: E402
 

@@ -61,3 +61,16 @@ def test_out_of_range_shape_is_refused() -> None:
     bad[0] = 3.0
     with pytest.raises(ValueError, match="global_x"):
         env.reset(0, bad)
+
+
+@pytest.mark.parametrize("name", sorted(TASKS))
+def test_a_divergence_terminates_with_zero_reward_and_observation(name: str) -> None:
+    """Every task ends a diverged episode the one way (`base.diverged_step`): terminated, not
+    truncated, reward 0, a zero observation."""
+    env = make_env(_cfg(name), seed=0)
+    env.reset(0, env.space.default_array)
+    env.data.qvel[:] = 1e11  # above mjMAXVAL: MuJoCo warns (mjWARN_BADQVEL) and resets the state
+    obs, r, term, trunc, info = env.step(np.zeros(env.act_dim))
+    assert info["diverged"] and not info["fell"]
+    assert term and not trunc and r == 0.0
+    assert obs.shape == (env.obs_dim,) and not obs.any()

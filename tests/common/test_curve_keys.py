@@ -11,7 +11,7 @@ import pytest
 import zmq
 
 from common import sockets, wire
-from common.curve import ACTOR, LEARNER, RunKeys, make_server
+from common.curve_keys import ACTOR, LEARNER, RunKeys, make_server
 from common.params import ParamSpace
 from common.rpc import ServiceUnavailable
 from sampler.client import SamplerClient
