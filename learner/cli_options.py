@@ -56,6 +56,18 @@ def comma_list(item: Callable[[str], Any], example: str, what: str = "comma-sepa
                                     str_from_instance=lambda v: ["None" if v is None else ",".join(map(str, v))])
 
 
+def value_list(item: Callable[[str], Any], metavar: str, show: Callable[[Any], str] = str,
+               nargs: str = "*") -> PrimitiveConstructorSpec:
+    """A flag taking several values (`--stitch a b`, `--keys 1:left 3:faster`) read as a tuple of
+    `item(text)`; the message of a ValueError `item` raises is the parse error, so it should name
+    the value and its form. `show` writes an item back (the default in --help); `nargs="+"`
+    refuses the flag without a value."""
+    return PrimitiveConstructorSpec(nargs=nargs, metavar=metavar,
+                                    instance_from_str=lambda args: tuple(item(x) for x in args),
+                                    is_instance=lambda v: isinstance(v, tuple),
+                                    str_from_instance=lambda v: [show(x) for x in v])
+
+
 CommaInts = Annotated[tuple[int, ...], comma_list(int, "1,2,4", "comma-separated integers")]
 """`--actors 1,2,4`: integers in one comma-separated value (limits check each)."""
 CommaFloats = Annotated[tuple[float, ...], comma_list(float, "0.5,1.0", "comma-separated numbers")]
@@ -92,7 +104,9 @@ def one_line(box: str) -> str:
     suggests (`--ppo.lr abc` -> "Error parsing --ppo.lr: could not convert string to float:
     'abc'; expected: --ppo.lr FLOAT")."""
     lines = [line for line in box.splitlines() if line.strip()]
+    title = ""
     if len(lines) >= 2 and lines[0].lstrip()[:1] in ("╭", "+", "-"):
+        title = lines[0].strip().strip("╭╮+-─ ").strip()
         lines = lines[1:-1]  # the top border (with the box's title) and the bottom one
     rows = [line.strip().strip("│|").strip() for line in lines]
     sections, current = [], []
@@ -105,7 +119,9 @@ def one_line(box: str) -> str:
         else:
             current.append(row)
     sections.append(current)
-    sections = [sec for sec in sections if sec]
+    sections = [sec for sec in sections if sec and not sec[0].startswith("For full helptext")]
+    if not sections and title:
+        return title  # the message is the title ("Missing value for argument '--stages'. ...")
     if len(sections) > 1 and len(sections[0]) == 1 and len(sections[0][0]) < 40 and not set(sections[0][0]) & set(":'\""):
         sections = sections[1:]  # a plain-text box's title ("Value error") on a row of its own
     if not sections:

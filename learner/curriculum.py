@@ -1,7 +1,6 @@
-"""`python -m learner.curriculum` (also `morphmimic curriculum`): a shape curriculum in one
-resumable command.
+"""`morphmimic curriculum`: a shape curriculum in one resumable command.
 
-    python -m learner.curriculum --stages 0.25:2M 0.5:6M 0.75:12M 1:20M -- \\
+    morphmimic curriculum --stages 0.25:2M 0.5:6M 0.75:12M 1:20M -- \\
         --preset lower_biped --name lb-curriculum --ppo.gamma 0.99
 
 Each stage `S:N` trains on the shape box shrunk xS toward the base shape
@@ -29,14 +28,18 @@ would decay to zero at every stage's end, so it is refused.
 
 from __future__ import annotations
 
-import argparse
 import itertools
 import json
 import re
-import sys
 from dataclasses import dataclass
 from decimal import Decimal, InvalidOperation
 from pathlib import Path
+from typing import Annotated, ClassVar
+
+from common.config_limits import Limit, validated
+from learner.cli_options import parse_options, refuse, value_list
+
+PROG = "morphmimic curriculum"
 
 _OWNED = ("--total-env-steps", "--total_env_steps", "--task.body.shape-box-scale", "--task.body.shape_box_scale",
           "--max-iterations", "--max_iterations")
@@ -124,23 +127,28 @@ def _without_resume(argv: list[str]) -> list[str]:
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
+@validated
+@dataclass
+class CurriculumOptions:
+    stages: Annotated[tuple[Stage, ...], value_list(parse_stage, "S:N", lambda st: f"{st.box_scale:g}:{st.until_steps}", nargs="+")]
+    """Box scale S in (0, 1] until the run's N-th environment step, in order (e.g. 0.25:2M 1:20M)."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {}
+    FLAG_PREFIX: ClassVar[str] = ""
+
+    def validate(self) -> None:
+        check_stages(list(self.stages))
+
+
+def main(argv: list[str]) -> int:
+    argv = list(argv)
     ours, learner_argv = (argv[: argv.index("--")], argv[argv.index("--") + 1 :]) if "--" in argv else (argv, None)
-    p = argparse.ArgumentParser(prog="python -m learner.curriculum", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--stages", nargs="+", required=True, metavar="S:N",
-                   help="box scale S in (0, 1] until the run's N-th environment step, in order (e.g. 0.25:2M 1:20M)")
-    args = p.parse_args(ours)
-    try:
-        stages = check_stages([parse_stage(s) for s in args.stages])
-    except ValueError as exc:
-        p.error(str(exc))
+    stages = list(parse_options(CurriculumOptions, ours, prog=PROG, description=__doc__).stages)
     if learner_argv is None or not any(a == "--preset" or a.startswith("--preset=") for a in learner_argv):
-        p.error("give the run after --, with its preset: ... -- --preset lower_biped --name NAME [learner.main options]")
+        refuse(PROG, "give the run after --, with its preset: ... -- --preset lower_biped --name NAME [learner.main options]")
     owned = [a for a in learner_argv if a.split("=")[0] in _OWNED]
     if owned:
-        p.error(f"{owned[0].split('=')[0]} is set by each stage (--stages S:N); leave it out after --")
+        refuse(PROG, f"{owned[0].split('=')[0]} is set by each stage (--stages S:N); leave it out after --")
 
     import logging
 
@@ -151,13 +159,13 @@ def main(argv: list[str] | None = None) -> int:
 
     cfg = learner_main.parse(learner_argv + ["--total-env-steps", str(stages[-1].until_steps)])
     if cfg.ppo.lr_schedule == "linear":
-        p.error("--ppo.lr-schedule linear decays to zero at each stage's end; use constant or adaptive")
+        refuse(PROG, "--ppo.lr-schedule linear decays to zero at each stage's end; use constant or adaptive")
     if not cfg.task.body.vary_shape:
-        p.error(f"preset/task {cfg.task.name!r} trains on the base shape only (vary_shape off): it has no box to grow")
+        refuse(PROG, f"preset/task {cfg.task.name!r} trains on the base shape only (vary_shape off): it has no box to grow")
     run_dir = Path(cfg.runs_dir) / cfg.name
     done, saved = run_state(run_dir)
     if saved is not None and (why := mismatch(saved, cfg)):
-        p.error(f"run {run_dir} was trained as another run ({why}); give another --name")
+        refuse(PROG, f"run {run_dir} was trained as another run ({why}); give another --name")
     own = saved is not None
     if not own and cfg.resume not in ("auto", "never"):
         # a fork: the stages count from the forked checkpoint's steps
@@ -166,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             done = int(checkpoint.load(Path(cfg.resume)).get("env_steps", 0))
         except checkpoint.CheckpointError as exc:
-            p.error(f"--resume {cfg.resume}: {exc}")
+            refuse(PROG, f"--resume {cfg.resume}: {exc}")
     try:
         for i, stage in enumerate(stages, 1):
             label = f"[curriculum] stage {i}/{len(stages)} (box x{stage.box_scale:g} until {stage.until_steps:,d} steps)"
@@ -187,7 +195,3 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     print(f"[curriculum] all {len(stages)} stages done: {done:,d} steps in {run_dir}", flush=True)
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -19,74 +19,70 @@ second of video, each `--speed` x as much simulated time, so the file has second
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, ClassVar
 
+from common.config_limits import PORT, Limit, above, at_least, check_limits, validated
+from learner.cli_options import parse_options, value_list
+from learner.live.session import LiveSession, Scheduler, SessionOptions, number_pair, shape_pair
 
-from learner.evaluation import cli_args
-from learner.live.session import AGENTS, LiveSession
-
-SCHEDULERS = ("dataset", "stitch", "keyboard", "video")
-
-
-def _number_pair(text: str, sep: str, number_at: int) -> tuple[str, float] | None:
-    """(the word, the finite number) of `text` split once at `sep`, the number at position
-    `number_at` (0 or 1); None when that does not parse."""
-    parts = text.split(sep, 1)
-    if len(parts) != 2 or not parts[0] or not parts[1]:
-        return None
-    try:
-        value = float(parts[number_at])
-    except ValueError:
-        return None
-    return (parts[1 - number_at], value) if math.isfinite(value) else None
-
-
-def shape_value(text: str) -> tuple[str, float]:
-    """argparse type: NAME=VALUE."""
-    pair = _number_pair(text, "=", 1)
-    if pair is None:
-        raise argparse.ArgumentTypeError(f"{text!r} is not NAME=VALUE with a finite number (e.g. global_z=1.2)")
-    return pair
+PROG = "morphmimic play"
 
 
 def timed_key(text: str) -> tuple[float, str]:
-    """argparse type: SECONDS:KEY."""
-    pair = _number_pair(text, ":", 0)
+    """'2.5:left' -> (2.5, 'left'); ValueError naming `text` when it is not SECONDS:KEY with
+    seconds >= 0."""
+    pair = number_pair(text, ":", 0)
     if pair is None or pair[1] < 0:
-        raise argparse.ArgumentTypeError(f"{text!r} is not SECONDS:KEY with seconds >= 0 (e.g. 2.5:left)")
+        raise ValueError(f"{text!r} is not SECONDS:KEY with seconds >= 0 (e.g. 2.5:left)")
     return pair[1], pair[0]
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="morphmimic play", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--checkpoint", required=True, help="a checkpoint directory, state.pt, run directory or learner/pretrained/<name>")
-    p.add_argument("--agent", choices=AGENTS, default="policy", help="who acts (zero and random: for comparison)")
-    p.add_argument("--seconds", type=cli_args.positive_float, default=10.0, help="simulated seconds to run")
-    p.add_argument("--speed", type=cli_args.positive_float, default=1.0, help="playback speed: simulated seconds per real (or video) second")
-    p.add_argument("--shape", type=shape_value, nargs="*", default=[], metavar="NAME=VALUE",
-                   help="shape parameters of a shape controller (morphmimic character PRESET --list names them)")
-    p.add_argument("--clip", default=None, help="the clip to follow (the executor: any humanoid clip)")
-    p.add_argument("--scheduler", choices=SCHEDULERS, default="dataset", help="where the executor's target frames come from")
-    p.add_argument("--stitch", nargs="*", default=[], metavar="CLIP", help="stitch: the clips to play one after the other")
-    p.add_argument("--keys", type=timed_key, nargs="*", default=[], metavar="SECONDS:KEY",
-                   help="keyboard: timed commands (left, right, faster, slower, stop, style:<name>)")
-    p.add_argument("--video-port", type=cli_args.port, default=0, help="video: the UDP port to listen on (0: any free one, printed)")
-    p.add_argument("--video-host", default="127.0.0.1", help="video: the address to listen on")
-    p.add_argument("--seed", type=cli_args.seed, default=0)
-    p.add_argument("--out", type=Path, default=None, help="render to this .mp4 (H.264) instead of running in real time")
-    p.add_argument("--fps", type=cli_args.positive_float, default=30.0, help="frames per second of the video")
-    p.add_argument("--width", type=cli_args.positive_int, default=640)
-    p.add_argument("--height", type=cli_args.positive_int, default=480)
-    p.add_argument("--viewer", action="store_true", help="open MuJoCo's viewer window (needs a display)")
-    return p
+@validated
+@dataclass(kw_only=True)
+class PlayOptions(SessionOptions):
+    checkpoint: str
+    """A checkpoint directory, state.pt, run directory or learner/pretrained/<name>."""
+    seconds: float = 10.0
+    """Simulated seconds to run."""
+    speed: float = 1.0
+    """Playback speed: simulated seconds per real (or video) second."""
+    shape: Annotated[tuple[tuple[str, float], ...], value_list(shape_pair, "NAME=VALUE", lambda p: f"{p[0]}={p[1]:g}")] = ()
+    """Shape parameters of a shape controller (morphmimic character PRESET --list names them)."""
+    scheduler: Scheduler = "dataset"
+    """Where the executor's target frames come from."""
+    stitch: Annotated[tuple[str, ...], value_list(str, "CLIP")] = ()
+    """stitch: the clips to play one after the other."""
+    keys: Annotated[tuple[tuple[float, str], ...], value_list(timed_key, "SECONDS:KEY", lambda k: f"{k[0]:g}:{k[1]}")] = ()
+    """keyboard: timed commands (left, right, faster, slower, stop, style:<name>)."""
+    video_port: int = 0
+    """video: the UDP port to listen on (0: any free one, printed)."""
+    video_host: str = "127.0.0.1"
+    """video: the address to listen on."""
+    out: Path | None = None
+    """Render to this .mp4 (H.264) instead of running in real time."""
+    fps: float = 30.0
+    """Frames per second of the video."""
+    width: int = 640
+    """Video width in pixels."""
+    height: int = 480
+    """Video height in pixels."""
+    viewer: bool = False
+    """Open MuJoCo's viewer window (needs a display)."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {**SessionOptions.LIMITS, "seconds": above(0), "speed": above(0),
+                                          "video_port": PORT, "fps": above(0), "width": at_least(1),
+                                          "height": at_least(1)}
+
+    def validate(self) -> None:
+        check_limits(self)
 
 
-def make_session(args: argparse.Namespace) -> tuple[LiveSession, Any]:
+def make_session(args: PlayOptions) -> tuple[LiveSession, Any]:
     """The session `args` describe, with its scheduler in place (None: the task's own)."""
     session = LiveSession(args.checkpoint, agent=args.agent, clip=args.clip, shape=dict(args.shape) or None, seed=args.seed)
     scheduler = None
@@ -164,16 +160,16 @@ def render_video(session: LiveSession, path: Path, seconds: float, speed: float,
 
 
 def main(argv: list[str]) -> int:
-    args = build_parser().parse_args(argv)
+    args = parse_options(PlayOptions, argv, prog=PROG, description=__doc__)
     try:
         session, scheduler = make_session(args)
     except ValueError as exc:
-        print(f"morphmimic play: {exc}", file=sys.stderr)
+        print(f"{PROG}: {exc}", file=sys.stderr)
         return 2
     try:
         if args.out is not None:
             if args.out.suffix.lower() != ".mp4":
-                print(f"morphmimic play: --out {args.out}: write an .mp4 (H.264)", file=sys.stderr)
+                print(f"{PROG}: --out {args.out}: write an .mp4 (H.264)", file=sys.stderr)
                 return 2
             n = render_video(session, args.out, args.seconds, args.speed, args.fps, args.width, args.height)
             print(f"[play] wrote {args.out}: {n} frames at {args.fps:g} fps ({args.seconds:g} s simulated at x{args.speed:g}); "
@@ -187,7 +183,3 @@ def main(argv: list[str]) -> int:
         if scheduler is not None and hasattr(scheduler, "close"):
             scheduler.close()
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))

@@ -15,19 +15,22 @@ positions `[T, J, 3]` in metres in the packet's joint order (`.npy`, or `.npz` w
 
 from __future__ import annotations
 
-import argparse
 import math
 import socket
 import sys
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
+from typing import Annotated, ClassVar, Iterator
 
 import mujoco
 import numpy as np
+import tyro
 
+from common.config_limits import Limit, above, between, check_limits, validated
 from common.tasks.executor.schedulers import pose_packet
+from learner.cli_options import parse_options
 
 DEFAULT_PORT = 9870
 CHARACTER = "humanoid"
@@ -138,36 +141,37 @@ def send_clip(clip_id: str, host: str = "127.0.0.1", port: int = DEFAULT_PORT, f
     return send_positions(clip_positions(clip_id, fps, speed, loop, seconds), port, host, fps, realtime=realtime, stop=stop)
 
 
-def _positive(text: str) -> float:
-    try:
-        x = float(text)
-    except ValueError:
-        x = math.nan
-    if not (math.isfinite(x) and x > 0):
-        raise argparse.ArgumentTypeError(f"{text!r} is not a positive number")
-    return x
+PROG = "morphmimic send-poses"
 
 
-def _port(text: str) -> int:
-    if not text.isdigit() or not 1 <= int(text) <= 65535:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a port (1 .. 65535)")
-    return int(text)
+@validated
+@dataclass
+class SendPosesOptions:
+    source: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="SOURCE")]
+    """A humanoid clip id (`morphmimic motion check --all` prints them) or a keypoint file .npy/.npz [T, J, 3]."""
+    host: str = "127.0.0.1"
+    """Where the video scheduler listens."""
+    port: int = DEFAULT_PORT
+    """The video scheduler's UDP port."""
+    fps: float | None = None
+    """Packets per second (default: 60, or the file's fps)."""
+    speed: float = 1.0
+    """Clip playback speed."""
+    loop: bool = False
+    """Repeat the clip or file."""
+    seconds: float | None = None
+    """Stop after this many seconds of stream."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {"port": between(1, 65535, integer=True), "fps": above(0),
+                                          "speed": above(0), "seconds": above(0)}
+    FLAG_PREFIX: ClassVar[str] = ""
+
+    def validate(self) -> None:
+        check_limits(self)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="morphmimic send-poses", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("source", help="a humanoid clip id (`morphmimic motion check --all` prints them) or a keypoint file .npy/.npz [T, J, 3]")
-    p.add_argument("--host", default="127.0.0.1", help="where the video scheduler listens")
-    p.add_argument("--port", type=_port, default=DEFAULT_PORT)
-    p.add_argument("--fps", type=_positive, default=None, help="packets per second (default: 60, or the file's fps)")
-    p.add_argument("--speed", type=_positive, default=1.0, help="clip playback speed")
-    p.add_argument("--loop", action="store_true", help="repeat the clip or file")
-    p.add_argument("--seconds", type=_positive, default=None, help="stop after this many seconds of stream")
-    return p
-
-
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
+def main(argv: list[str]) -> int:
+    args = parse_options(SendPosesOptions, argv, prog=PROG, description=__doc__)
     try:
         if args.source.lower().endswith((".npy", ".npz")):
             positions, file_fps = load_keypoints(args.source)
@@ -181,13 +185,9 @@ def main(argv: list[str] | None = None) -> int:
                   f"-> udp://{args.host}:{args.port}", flush=True)
             sent = send_clip(args.source, args.host, args.port, fps, args.speed, args.loop, args.seconds)
     except (ValueError, OSError) as exc:
-        print(f"morphmimic send-poses: {exc}", file=sys.stderr)
+        print(f"{PROG}: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 0
     print(f"[send-poses] sent {sent} packets", flush=True)
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

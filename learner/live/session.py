@@ -21,17 +21,24 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
+import typing
+from dataclasses import dataclass
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 import torch
 
 from common.characters.mass import scale_body_mass
-from learner.evaluation import harness
+from common.config_limits import SEED, Limit, check_limits, validated
 from learner.checkpoint import Loaded, load_trained, make_policy
+from learner.evaluation import harness
 
-AGENTS = ("policy", "zero", "random")
+Agent = Literal["policy", "zero", "random"]
+AGENTS: tuple[str, ...] = typing.get_args(Agent)
 """Who acts: the checkpoint's policy (mean action), zero actions, or uniform random actions."""
+Scheduler = Literal["dataset", "stitch", "keyboard", "video"]
+SCHEDULERS: tuple[str, ...] = typing.get_args(Scheduler)
+"""Where the executor's target frames come from (`common.tasks.executor.schedulers.factory`)."""
 LOST_M = 0.5
 """The executor has lost its target when the mean body-position error exceeds this (PHC's
 success criterion, Luo et al. 2023); the session then resets (with `auto_reset`)."""
@@ -56,6 +63,47 @@ def finite_number(value: Any, what: str, allowed: str) -> float:
     if isinstance(value, bool) or not math.isfinite(v):
         raise ValueError(f"{what} = {value!r} is not a finite number; it must be {allowed}")
     return v
+
+
+def number_pair(text: str, sep: str, number_at: int) -> tuple[str, float] | None:
+    """(the word, the finite number) of `text` split once at `sep`, the number at position
+    `number_at` (0 or 1); None when that does not parse."""
+    parts = text.split(sep, 1)
+    if len(parts) != 2 or not parts[0] or not parts[1]:
+        return None
+    try:
+        value = float(parts[number_at])
+    except ValueError:
+        return None
+    return (parts[1 - number_at], value) if math.isfinite(value) else None
+
+
+def shape_pair(text: str) -> tuple[str, float]:
+    """'global_z=1.2' -> ('global_z', 1.2); ValueError naming `text` when it is not NAME=VALUE
+    with a finite number (the name is checked by `LiveSession.set_shape`)."""
+    pair = number_pair(text, "=", 1)
+    if pair is None:
+        raise ValueError(f"{text!r} is not NAME=VALUE with a finite number (e.g. global_z=1.2)")
+    return pair
+
+
+@validated
+@dataclass(kw_only=True)
+class SessionOptions:
+    """The command-line options a `LiveSession` opens with (`morphmimic play`, `morphmimic studio`)."""
+
+    agent: Agent = "policy"
+    """Who acts: the policy (mean action), or zero / random actions for comparison."""
+    clip: str | None = None
+    """The clip to follow (the executor: any humanoid clip)."""
+    seed: int = 0
+    """Seed of the session's starts and random actions."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {"seed": SEED}
+    FLAG_PREFIX: ClassVar[str] = ""
+
+    def validate(self) -> None:
+        check_limits(self)
 
 
 def live_task(loaded: Loaded, clip: str | None = None, episode_s: float = 3600.0):

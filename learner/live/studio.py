@@ -24,20 +24,21 @@ status line while the simulation keeps going.
 
 from __future__ import annotations
 
-import argparse
 import html
 import logging
 import sys
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import viser
 
-from learner.evaluation import cli_args
-from learner.live.session import AGENTS
+from common.config_limits import PORT, Limit, above, check_limits, validated
+from learner.cli_options import parse_options
+from learner.live.session import AGENTS, SessionOptions
 from learner.live.studio_core import KEYS, SCHEDULERS, StudioCore, pretrained_checkpoints
 from learner.live.studio_scene import CharacterScene
 
@@ -414,28 +415,37 @@ class Studio:
         self.stop()
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="morphmimic studio", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--checkpoint", default=DEFAULT_CHECKPOINT,
-                   help=f"a shipped checkpoint name ({', '.join(pretrained_checkpoints())}) or a checkpoint path")
-    p.add_argument("--host", default="127.0.0.1", help="address to serve on (0.0.0.0: share it on the network)")
-    p.add_argument("--port", type=cli_args.port, default=8080, help="port (taken: the next free one is used and printed; 0: any)")
-    p.add_argument("--agent", choices=AGENTS, default="policy")
-    p.add_argument("--clip", default=None, help="the clip to follow (the executor: any humanoid clip)")
-    p.add_argument("--seed", type=cli_args.seed, default=0)
-    p.add_argument("--seconds", type=cli_args.positive_float, default=None, help="stop by itself after this many seconds")
-    return p
+PROG = "morphmimic studio"
+
+
+@validated
+@dataclass(kw_only=True)
+class StudioOptions(SessionOptions):
+    checkpoint: str = DEFAULT_CHECKPOINT
+    """A shipped checkpoint name (listed above) or a checkpoint path."""
+    host: str = "127.0.0.1"
+    """Address to serve on (0.0.0.0: share it on the network)."""
+    port: int = 8080
+    """Port (taken: the next free one is used and printed; 0: any)."""
+    seconds: float | None = None
+    """Stop by itself after this many seconds."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {**SessionOptions.LIMITS, "port": PORT, "seconds": above(0)}
+
+    def validate(self) -> None:
+        check_limits(self)
 
 
 def main(argv: list[str]) -> int:
-    args = build_parser().parse_args(argv)
+    description = f"{__doc__}\nshipped checkpoints: {', '.join(pretrained_checkpoints())}"
+    args = parse_options(StudioOptions, argv, prog=PROG, description=description)
     import torch
 
     torch.set_num_threads(1)  # NOTE: one small MLP per step: more threads only fight the server's
     try:
         studio = Studio(args.checkpoint, host=args.host, port=args.port, agent=args.agent, clip=args.clip, seed=args.seed)
     except (ValueError, FileNotFoundError, SystemExit) as exc:  # NOTE: checkpoint.load_trained exits with a message on a bad checkpoint
-        print(f"morphmimic studio: {exc}", file=sys.stderr)
+        print(f"{PROG}: {exc}", file=sys.stderr)
         return 2
     studio.start()
     print(f"[studio] {studio.core.session.loaded.name} at {studio.url}  (Ctrl-C stops)", flush=True)
@@ -450,7 +460,3 @@ def main(argv: list[str]) -> int:
     snap = studio.core.snapshot()
     print(f"[studio] stopped: {snap['loop_steps']} steps, {snap['errors']} errors", flush=True)
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))

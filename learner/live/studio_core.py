@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import collections
 import concurrent.futures
-import math
 import threading
 import time
 import traceback
@@ -23,10 +22,9 @@ from typing import Any, Callable
 
 import numpy as np
 
-from learner.live.session import AGENTS, LiveSession
+from learner.live.session import AGENTS, SCHEDULERS, LiveSession, shape_pair
 
 PRETRAINED = Path(__file__).resolve().parents[1] / "pretrained"
-SCHEDULERS = ("dataset", "stitch", "keyboard", "video")
 KEYS = ("left", "right", "faster", "slower", "stop")
 """The keyboard scheduler's commands besides `style:<name>`."""
 HISTORY_S = 10.0
@@ -45,13 +43,7 @@ def parse_shape_text(text: str) -> dict[str, float]:
     """'global_z=1.2 Pelvis_x=0.9' (spaces or commas between pairs) -> {name: value}."""
     out: dict[str, float] = {}
     for item in text.replace(",", " ").split():
-        name, sep, value = item.partition("=")
-        try:
-            number = float(value)
-        except ValueError:
-            number = math.nan
-        if not sep or not name or not math.isfinite(number):
-            raise ValueError(f"{item!r} is not NAME=VALUE with a finite number (e.g. global_z=1.2)")
+        name, number = shape_pair(item)
         out[name] = number
     if not out:
         raise ValueError("type NAME=VALUE pairs, e.g. global_z=1.2")

@@ -1,4 +1,4 @@
-"""`python -m learner.curriculum`: stages parsed and checked, and a real two-stage run of the
+"""`morphmimic curriculum`: stages parsed and checked, and a real two-stage run of the
 tiny lower biped that grows its box, continues one run and skips what is done when repeated."""
 
 from __future__ import annotations

@@ -2,14 +2,9 @@
 
 from __future__ import annotations
 
-import os
-
 import pytest
 
 from tests.common.characters.conftest import FISH_XML
-
-if "MUJOCO_GL" not in os.environ and not os.environ.get("DISPLAY"):
-    os.environ["MUJOCO_GL"] = "osmesa"
 
 
 def test_cli_prints_and_writes_mjcf(tmp_path, capsys):

@@ -28,7 +28,7 @@ def test_play_writes_a_video_with_the_expected_frame_count(tmp_path, capsys) -> 
 
 
 def test_speed_stretches_simulated_time_per_video_frame(tmp_path) -> None:
-    s = play.make_session(play.build_parser().parse_args(["--checkpoint", BIPED]))[0]
+    s = play.make_session(play.PlayOptions(checkpoint=BIPED))[0]
     n = play.render_video(s, tmp_path / "fast.mp4", seconds=1.0, speed=2.0, fps=10, width=64, height=48)
     assert n == 5
     assert s.steps == pytest.approx(1.0 / s.env.dt * 0.8, abs=2)  # the last frame is at 0.8 s of simulation
