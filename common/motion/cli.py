@@ -63,6 +63,10 @@ def cmd_import(args) -> int:
     from common.motion.library import CLIPS_DIR, MotionLibrary, import_entry, import_source
 
     out_dir = Path(args.out) if args.out else CLIPS_DIR
+    if getattr(args, "bandai", None):  # the Bandai Namco takes onto the humanoid + their manifest entries
+        from common.motion.bandai import import_bandai
+
+        return 1 if import_bandai(args.bandai, args.out)[1] else 0
     jobs = []
     if args.all:
         lib = MotionLibrary()
@@ -124,6 +128,8 @@ def _raw_clip(clip):
     if not skeleton or not source:
         return clip
     path = DATA_DIR / source if (DATA_DIR / source).exists() else Path(source)
+    if not path.exists():  # a shipped clip whose source is not in the repository (Bandai Namco)
+        return clip
     return naive_clip(path, skeleton=skeleton, character=clip.character)
 
 
@@ -178,6 +184,7 @@ def build_parser() -> argparse.ArgumentParser:
     imp.add_argument("--skeleton", choices=("mass", "cmu"), help="BVH name map (default: guessed)")
     imp.add_argument("--character", help="import a BVH onto this character: biped (default) or humanoid "
                                           "(cross-skeleton retargeting)")
+    imp.add_argument("--bandai", metavar="DIR", help="convert the Bandai Namco datasets below DIR (common/motion/bandai.py)")
     imp.add_argument("--label", default="root", help="hierarchical class label for files given by path")
     for name, help_ in (("view", "render a clip kinematically to a PNG strip (.png) or animation (.gif/.mp4)"),
                         ("check", "per clip: feet vs floor, joint-range violations, rate, length")):
