@@ -65,6 +65,21 @@ class Bvh:
         angles = self.motion[:, [cols[c] for c in rot_chans]]
         return Rotation.from_euler(seq, angles, degrees=True)
 
+    def has_positions(self, joint: str) -> bool:
+        """True when the joint has position channels (a non-root joint with them, as every
+        Bandai Namco joint has, is translated by them instead of its OFFSET)."""
+        return any(c.endswith("position") for c in self.channels[self.joint_names.index(joint)])
+
+    def local_translations(self, joint: str) -> np.ndarray:
+        """(N, 3) translation from the parent per frame, file units: the position channels
+        where the joint has them, else its rest OFFSET (per axis)."""
+        cols = self.columns(joint)
+        out = np.tile(self.offsets[self.joint_names.index(joint)], (self.num_frames, 1))
+        for axis, c in enumerate(("Xposition", "Yposition", "Zposition")):
+            if c in cols:
+                out[:, axis] = self.motion[:, cols[c]]
+        return out
+
     def root_positions(self) -> np.ndarray:
         """(N, 3) root position from its position channels (file units); rest offset if none."""
         cols = self.columns(self.joint_names[0])

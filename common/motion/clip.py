@@ -130,8 +130,9 @@ class Clip:
         """A copy with some fields replaced (validated again)."""
         return replace(self, **changes)
 
-    def save(self, path: str | Path) -> Path:
-        """Write the clip as an uncompressed `.npz` (fast to load); returns the path."""
+    def save(self, path: str | Path, compact: bool = False) -> Path:
+        """Write the clip as an uncompressed `.npz` (fast to load); returns the path. `compact`:
+        float32 arrays, zip-compressed (about half the size; `load_clip` reads float64 back)."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         meta = dict(
@@ -140,8 +141,11 @@ class Clip:
             source=self.source, license=self.license, extra=self.extra,
         )
         with open(path, "wb") as fh:
-            np.savez(fh, root_pos=self.root_pos, root_quat=self.root_quat, joint_qpos=self.joint_qpos,
-                     hinge_axes=self.hinge_axes, meta=np.array(json.dumps(meta)))
+            arrays = dict(root_pos=self.root_pos, root_quat=self.root_quat, joint_qpos=self.joint_qpos, hinge_axes=self.hinge_axes)
+            if compact:
+                np.savez_compressed(fh, **{k: v.astype(np.float32) for k, v in arrays.items()}, meta=np.array(json.dumps(meta)))
+            else:
+                np.savez(fh, **arrays, meta=np.array(json.dumps(meta)))
         return path
 
 

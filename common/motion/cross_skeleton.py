@@ -60,7 +60,9 @@ from common.motion.import_bvh import BVH_TO_MUJOCO, CMU_SCALE_M, MASS_SCALE_M, T
 from common.motion.import_deepmimic import HUMANOID_JOINTS
 
 # A direction at rest (`Segment`): `(from, to)` joint (source) or body (humanoid) names, the
-# rest position of `to` minus that of `from`; or a world axis of the Z-up frame (`AXES`).
+# rest position of `to` minus that of `from`; a world axis of the Z-up frame (`AXES`); or a
+# vector (x, y, z) of three numbers in the Z-up frame (a local axis of a source joint whose rest
+# frame is rotated, e.g. Bandai Namco's thighs: their "left" is the file's +Y).
 AXES = {"up": np.array([0.0, 0.0, 1.0]), "forward": np.array([1.0, 0.0, 0.0]), "left": np.array([0.0, 1.0, 0.0])}
 TARGETS = ("humanoid",)
 """Characters a BVH can be retargeted onto (the segment maps below are the humanoid's bodies)."""
@@ -92,13 +94,16 @@ class SourceSkeleton:
     """{humanoid body: Segment}; the root body `root` must be there."""
     naive: dict
     """{humanoid joint: BVH joint(s)} whose local rotations a naive copy would use (`naive_clip`)."""
+    stands_at_rest: bool = True
+    """False when the rest pose (every rotation 0) does not stand (Bandai Namco's rotated rest
+    frames lay the legs sideways): the source hip height is then measured in `standing_rest`."""
 
     def joints_named(self) -> set[str]:
         """Every BVH joint this map names."""
         out = set(self.hips) | set(self.feet)
         for seg in self.segments.values():
             out.add(seg.source)
-            out.update(j for d in seg.source_dirs if not isinstance(d, str) for j in d)
+            out.update(j for d in seg.source_dirs if _is_pair(d) for j in d)
         for v in self.naive.values():
             out.update((v,) if isinstance(v, str) else v)
         return out
@@ -145,18 +150,69 @@ def _feet(p: str) -> tuple[str, ...]:
     return (p + "RightToeBase", p + "LeftToeBase", p + "RightFoot", p + "LeftFoot")
 
 
+BANDAI_FOOT_PITCH_DEG = 39.6
+"""How far the Bandai Namco ankle -> toe bone points below the horizontal when the foot stands
+flat: the median over the first frames of 62 standing takes (bow, raise, wave, call, respond)."""
+
+
+def _bandai() -> SourceSkeleton:
+    """The 22-joint Bandai Namco skeleton (`joint_Root` at the floor, `Hips`, `Spine`, `Chest`,
+    `Neck`, `Head`, `{Shoulder,UpperArm,LowerArm,Hand}_{L,R}`, `{UpperLeg,LowerLeg,Foot,Toes}_{L,R}`,
+    30 fps, cm, Y up, +Z forward). Its joints' rest frames are rotated: with every rotation 0 the
+    spine and legs lie along the file's X (the all-zero pose does not stand), so the twist of a
+    bone cannot be read off the world axes as for MASS and CMU. Bone directions come from the
+    offsets; the second direction of each segment is the joint's local axis that is anatomical in
+    every take (read off standing frames): the spine joints' local +X is up and +Z left, the hips'
+    +X up and -Y left (the hip line from the offsets), the thighs' and shins' +Y left (the knee
+    axis), the left arm's +Z and the right arm's -Z forward, and the feet's "up" lies in their
+    local X-Z plane `BANDAI_FOOT_PITCH_DEG` from the toe bone (file axes -> Z-up via BVH_TO_MUJOCO)."""
+    def ax(x, y, z):  # a file-axes vector in the Z-up frame
+        return tuple(BVH_TO_MUJOCO @ np.array([x, y, z], dtype=float))
+
+    pitch = np.radians(BANDAI_FOOT_PITCH_DEG)
+    segs = {
+        "root": Segment("Hips", (("UpperLeg_R", "UpperLeg_L"), ("Hips", "Spine")), (("right_hip", "left_hip"), "up")),
+        "chest": Segment("Chest", (("Chest", "Neck"), ("Shoulder_R", "Shoulder_L")),
+                         (("chest", "neck"), ("right_shoulder", "left_shoulder"))),
+        "neck": Segment("Head", (ax(1, 0, 0), ax(0, 0, 1)), ("up", "left")),
+    }
+    naive = {"root": "Hips", "chest": ("Spine", "Chest"), "neck": ("Neck", "Head")}
+    for side, s, sign in (("right", "_R", -1.0), ("left", "_L", 1.0)):
+        h = side + "_"
+        for body, joint, child, body_child, second, target in (
+                ("hip", "UpperLeg", "LowerLeg", "knee", ax(0, 1, 0), "left"),
+                ("knee", "LowerLeg", "Foot", "ankle", ax(0, 1, 0), "left"),
+                ("shoulder", "UpperArm", "LowerArm", "elbow", ax(0, 0, sign), "forward"),
+                ("elbow", "LowerArm", "Hand", "wrist", ax(0, 0, sign), "forward")):
+            segs[h + body] = Segment(joint + s, ((joint + s, child + s), second), ((h + body, h + body_child), target))
+        foot_up = ax(-sign * np.sin(pitch), 0.0, sign * np.cos(pitch))
+        segs[h + "ankle"] = Segment("Foot" + s, (foot_up, ("Foot" + s, "Toes" + s)), ("up", "forward"))
+        naive.update({h + "hip": "UpperLeg" + s, h + "knee": "LowerLeg" + s, h + "ankle": "Foot" + s,
+                      h + "shoulder": ("Shoulder" + s, "UpperArm" + s), h + "elbow": "LowerArm" + s})
+    return SourceSkeleton("bandai", BANDAI_SCALE_M, ("UpperLeg_R", "UpperLeg_L"), ("Toes_R", "Toes_L", "Foot_R", "Foot_L"),
+                          segs, naive, stands_at_rest=False)
+
+
+BANDAI_SCALE_M = 0.01
+"""Bandai Namco BVH units (cm) to metres."""
 _M = "Character1_"
 SOURCE_SKELETONS: dict[str, SourceSkeleton] = {s.name: s for s in (
     SourceSkeleton("mass", MASS_SCALE_M, (_M + "RightUpLeg", _M + "LeftUpLeg"), _feet(_M), _segments(_M, _M + "Neck"),
                    _naive(_M, (_M + "Spine", _M + "Spine1"), (_M + "Neck", _M + "Head"))),
     SourceSkeleton("cmu", CMU_SCALE_M, ("RightUpLeg", "LeftUpLeg"), _feet(""), _segments("", "Neck1"),
                    _naive("", ("LowerBack", "Spine", "Spine1"), ("Neck", "Neck1", "Head"), hip_extra="HipJoint")),
+    _bandai(),
 )}
 """The BVH skeletons the humanoid can be driven from, by name (manifest field `retarget_from`)."""
 
 
+def _is_pair(spec) -> bool:
+    """True for a `(from, to)` pair of names (not an axis name, not a vector)."""
+    return not isinstance(spec, str) and len(spec) == 2 and all(isinstance(x, str) for x in spec)
+
+
 def source_skeleton(skeleton: str | SourceSkeleton) -> SourceSkeleton:
-    """A skeleton by name ('mass', 'cmu') or as given; ClipError naming an unknown name."""
+    """A skeleton by name ('mass', 'cmu', 'bandai') or as given; ClipError naming an unknown name."""
     if isinstance(skeleton, SourceSkeleton):
         return skeleton
     if skeleton not in SOURCE_SKELETONS:
@@ -246,7 +302,8 @@ def source_pose(bvh: Bvh, scale_m: float, axes: np.ndarray = BVH_TO_MUJOCO) -> S
         else:
             parent = rots[names[p]]
             rots[name] = parent * local
-            pos[:, j] = pos[:, p] + parent.apply(offsets[j])
+            step = bvh.local_translations(name) * scale_m @ axes.T if bvh.has_positions(name) else offsets[j]
+            pos[:, j] = pos[:, p] + parent.apply(step)
             rest[j] = rest[p] + offsets[j]
     return SourcePose(names, rots, pos, rest)
 
@@ -256,6 +313,11 @@ def _direction(spec, position) -> np.ndarray:
         if spec not in AXES:
             raise ClipError(f"direction {spec!r} is not a pair of names nor one of {', '.join(AXES)}")
         return AXES[spec]
+    if not _is_pair(spec):
+        v = np.asarray(spec, dtype=float)
+        if v.shape != (3,) or not np.linalg.norm(v) > 1e-9:
+            raise ClipError(f"direction {spec!r} is not a pair of names, an axis name nor a nonzero 3-vector")
+        return v / np.linalg.norm(v)
     a, b = spec
     v = position(b) - position(a)
     norm = np.linalg.norm(v)
@@ -278,6 +340,22 @@ def rest_corrections(skeleton: SourceSkeleton, pose: SourcePose, character: str 
     return out
 
 
+def standing_rest(bvh: Bvh, pose: SourcePose, skeleton: SourceSkeleton, corr: dict[str, Rotation]) -> np.ndarray:
+    """(J, 3) joint positions of the source standing as the humanoid stands at rest: each mapped
+    joint turned by its rest correction C_b (its bones onto the humanoid's rest directions: legs
+    straight down, feet flat), an unmapped joint (spine, toes, hands) turned with its parent;
+    lengths from the rest offsets. For a skeleton whose all-zero pose does not stand
+    (`stands_at_rest` False), where the hip height above the feet is measured."""
+    turn = {seg.source: corr[body] for body, seg in skeleton.segments.items()}
+    glob: dict[str, Rotation] = {}
+    out = np.zeros_like(pose.rest)
+    for j, (name, p) in enumerate(zip(pose.names, bvh.parents)):
+        parent = glob[pose.names[p]] if p >= 0 else Rotation.identity()
+        glob[name] = turn.get(name, parent)
+        out[j] = pose.rest[j] if p < 0 else out[p] + parent.apply(pose.rest[j] - pose.rest[p])
+    return out
+
+
 def _validate(skeleton: SourceSkeleton, bvh: Bvh, target: _Target) -> None:
     missing = sorted(skeleton.joints_named() - set(bvh.joint_names))
     if missing:
@@ -287,7 +365,7 @@ def _validate(skeleton: SourceSkeleton, bvh: Bvh, target: _Target) -> None:
     jointed = set(target.order) | {"root"}
     named = set(skeleton.segments) | set(skeleton.naive)
     for seg in skeleton.segments.values():
-        named.update(b for d in seg.target_dirs if not isinstance(d, str) for b in d)
+        named.update(b for d in seg.target_dirs if _is_pair(d) for b in d)
     unknown = sorted(n for n in named if n not in bodies or (n in skeleton.segments and n not in jointed))
     if unknown:
         raise ClipError(f"the {skeleton.name!r} skeleton map names humanoid bodies {unknown} that are not jointed bodies "
@@ -380,8 +458,9 @@ def map_pose(bvh: Bvh, skeleton: str | SourceSkeleton = "mass", character: str =
             reached[body] = want.get(body, parent)
     # Root: the source hip joints' midpoint, scaled by the ratio of hip heights at rest.
     hips = [pose.names.index(h) for h in skel.hips]
-    feet_rest = min(pose.at_rest(f)[2] for f in skel.feet)
-    src_hip_height = float(pose.rest[hips, 2].mean() - feet_rest)
+    rest = pose.rest if skel.stands_at_rest else standing_rest(bvh, pose, skel, corr)
+    feet_rest = min(rest[pose.names.index(f), 2] for f in skel.feet)
+    src_hip_height = float(rest[hips, 2].mean() - feet_rest)
     if src_hip_height <= 0:
         raise ClipError(f"source hip height at rest is {src_hip_height:.3f} m; the hips must be above the feet", path=bvh.path)
     ratio = target.hip_height_m / src_hip_height
@@ -551,8 +630,10 @@ def naive_clip(source: str | Path | Bvh, *, skeleton: str | SourceSkeleton = "ma
 
 
 def guess_skeleton(path: str | Path) -> str:
-    """'mass' when the file's root joint is MASS's `Character1_Hips`, else 'cmu'."""
-    return "mass" if "Character1_Hips" in Path(path).read_text(errors="replace")[:2000] else "cmu"
+    """'mass' when the file's root joint is MASS's `Character1_Hips`, 'bandai' when it is Bandai
+    Namco's `joint_Root`, else 'cmu'."""
+    head = Path(path).read_text(errors="replace")[:2000]
+    return "mass" if "Character1_Hips" in head else "bandai" if "ROOT joint_Root" in head else "cmu"
 
 
 __all__ = [

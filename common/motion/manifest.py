@@ -5,7 +5,8 @@ walks this tree choosing each child with equal probability. The manifest starts 
 `common/data/clips.json`.
 
 Each entry: `id`, `path` (the raw source, relative to `common/data/`), `label`, `format`
-(`deepmimic_json` | `bvh`), `fps`, `frames`, optional `loop` ("wrap"), and two optional fields
+(`deepmimic_json` | `bvh` | `npz`: a shipped canonical clip whose raw source is not in the
+repository, e.g. the Bandai Namco takes, `common.motion.bandai`), `fps`, `frames`, optional `loop` ("wrap"), and two optional fields
 for clips played on another character than their source's own:
 - `character`: the character preset the clip plays on as-is; default the format's own
   (`deepmimic_json` -> humanoid, `bvh` -> biped, `NATIVE_CHARACTER`);
@@ -206,3 +207,34 @@ def unicon_split(manifest: Manifest, *, seed: int = 0, test_fraction: float = 0.
                 test_frames += e.split_frames
     train = tuple(e.id for e in manifest.entries if e.id not in test)
     return Split(train=train, test=tuple(sorted(test)), seed=seed, test_fraction_frames=test_frames / total)
+
+
+def unicon_take_split(manifest: Manifest, *, seed: int = 0, test_fraction: float = 0.2) -> Split:
+    """Per-class split by takes, for a library whose classes hold several takes of one motion
+    (the Bandai Namco content x style pairs, labels `root/bandai/<content>/<style>`).
+
+    UniCon 2020 (METHOD.md B, "Evaluation": split by category, 80/20, rare classes go to the test
+    set first), applied per class (a clip's whole label) instead of over frames:
+    - a class with a single take goes to the test set (the rare-classes-first rule at its limit:
+      a motion seen once is kept for evaluating generalization);
+    - of a class with n >= 2 takes, max(1, round(test_fraction * n)) takes chosen by a seeded
+      permutation go to the test set, the rest to training: every such class is both trained
+      on and tested on unseen takes of it (4 takes -> 1 held out, 2 -> 1).
+    A seed fixes the split; `test_fraction_frames` reports the share of frames (at SPLIT_FPS)
+    that landed in the test set."""
+    if not 0.0 < test_fraction < 1.0:
+        raise ValueError(f"test_fraction must be in (0, 1), got {test_fraction}")
+    rng = np.random.default_rng(seed)
+    classes: dict[str, list[ClipEntry]] = defaultdict(list)
+    for e in manifest.entries:
+        classes[e.label].append(e)
+    test: list[str] = []
+    for cls in sorted(classes):
+        members = sorted(classes[cls], key=lambda e: e.id)
+        held = len(members) if len(members) == 1 else max(1, round(test_fraction * len(members)))
+        test += [members[i].id for i in rng.permutation(len(members))[:held]]
+    chosen = set(test)
+    total = sum(e.split_frames for e in manifest.entries)
+    test_frames = sum(e.split_frames for e in manifest.entries if e.id in chosen)
+    train = tuple(e.id for e in manifest.entries if e.id not in chosen)
+    return Split(train=train, test=tuple(sorted(test)), seed=seed, test_fraction_frames=test_frames / total if total else 0.0)

@@ -64,6 +64,8 @@ class ImportOptions:
     """Import a BVH onto this character: biped (default) or humanoid (cross-skeleton retargeting)."""
     label: str = "root"
     """Hierarchical class label for files given by path."""
+    bandai: str | None = None
+    """Convert the Bandai Namco datasets below this directory onto the humanoid (common/motion/bandai.py)."""
 
     LIMITS: ClassVar[dict[str, Limit]] = {"fps": above(0)}
     FLAG_PREFIX: ClassVar[str] = ""
@@ -154,6 +156,10 @@ def cmd_import(args) -> int:
     from common.motion.library import CLIPS_DIR, MotionLibrary, import_entry, import_source
 
     out_dir = Path(args.out) if args.out else CLIPS_DIR
+    if args.bandai:  # the Bandai Namco takes onto the humanoid + their manifest entries
+        from common.motion.bandai import import_bandai
+
+        return 1 if import_bandai(args.bandai, args.out)[1] else 0
     jobs = []
     if args.all:
         lib = MotionLibrary()
@@ -215,6 +221,10 @@ def _raw_clip(clip):
     if not skeleton or not source:
         return clip
     path = DATA_DIR / source if (DATA_DIR / source).exists() else Path(source)
+    if not path.exists():  # a shipped clip whose source is not in the repository (Bandai Namco)
+        return clip
+    if not path.exists():  # a shipped clip whose source is not in the repository (Bandai Namco)
+        return clip
     return naive_clip(path, skeleton=skeleton, character=clip.character)
 
 

@@ -21,6 +21,11 @@ class ExecutorConfig:
     the task trains on when `clips` is empty."""
     split_seed: int = 0
     """Seed of the split (`common.motion.manifest.unicon_split`)."""
+    library: Literal["core", "full"] = "core"
+    """Which clips play on the humanoid: "core", the DeepMimic clips and the MASS clips retargeted
+    onto it (what every shipped executor trained on); "full", those and the Bandai Namco takes
+    (`humanoid/bandai/*`, CC BY-NC 4.0: a checkpoint trained on them carries those terms), whose
+    split is per class by takes (`common.motion.manifest.unicon_take_split`)."""
     mirror: bool = False
     """Also track every clip's left-right mirror image (`<id>~mirror`: the other hand and foot,
     turning the other way; `common.motion.mirror`), with its source's label and on its source's

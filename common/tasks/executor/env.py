@@ -42,7 +42,7 @@ from common.characters.mass import scale_body_mass
 from common.characters.morph import lift_out_of_floor
 from common.motion.clip_manager import ClipManager
 from common.motion.library import MotionLibrary
-from common.motion.manifest import Manifest, load_manifest, unicon_split
+from common.motion.manifest import Manifest, load_manifest, unicon_split, unicon_take_split
 from common.motion.mirror import MIRROR_SUFFIX, mirrored_id, source_id
 from common.motion.reference import CharacterMotion
 from common.params import ParamSpace
@@ -80,12 +80,19 @@ def _manifest() -> Manifest:
     return load_manifest()
 
 
-def humanoid_clips(mirror: bool = False) -> list[tuple[str, str]]:
-    """(clip_id, label) of every manifest clip that plays on the humanoid as it is; with `mirror`,
-    each followed by its left-right mirror image (`<id>~mirror`, the same label; mirror.py)."""
+BANDAI_PREFIX = "humanoid/bandai/"
+"""Manifest ids of the Bandai Namco takes on the humanoid (`common.motion.bandai`)."""
+
+
+def humanoid_clips(mirror: bool = False, library: str = "core") -> list[tuple[str, str]]:
+    """(clip_id, label) of every manifest clip of `library` ("core" or "full", see
+    `ExecutorConfig.library`) that plays on the humanoid as it is; with `mirror`, each followed
+    by its left-right mirror image (`<id>~mirror`, the same label; mirror.py)."""
     from common.motion.library import clips_for
 
-    pairs = list(clips_for(CHARACTER, _manifest()))
+    if library not in ("core", "full"):
+        raise ValueError(f"clip library {library!r} is not one of core, full")
+    pairs = [(c, label) for c, label in clips_for(CHARACTER, _manifest()) if library == "full" or not c.startswith(BANDAI_PREFIX)]
     return _with_mirrors(pairs) if mirror else pairs
 
 
@@ -107,7 +114,7 @@ def labelled_clips(cfg: TaskConfig) -> list[tuple[str, str]]:
     the manifest's clips; with `mirror` each clip's mirror image joins it on its side, so a
     held-out motion is never learnt through its mirror. Named clips may be mirrored ids."""
     ex = cfg.executor
-    plain = humanoid_clips()
+    plain = humanoid_clips(library=ex.library)
     if ex.clips:
         labels = dict(_with_mirrors(plain))
         unknown = [c for c in ex.clips if c not in labels]
@@ -122,9 +129,13 @@ def labelled_clips(cfg: TaskConfig) -> list[tuple[str, str]]:
     if ex.split == "all":
         return every
     manifest = _manifest()
-    sub = Manifest(tuple(manifest.by_id(c) for c, _ in plain))
-    split = unicon_split(sub, seed=ex.split_seed)
+    core = Manifest(tuple(manifest.by_id(c) for c, _ in plain if not c.startswith(BANDAI_PREFIX)))
+    split = unicon_split(core, seed=ex.split_seed)
     keep = set(split.train if ex.split == "train" else split.test)
+    takes = Manifest(tuple(manifest.by_id(c) for c, _ in plain if c.startswith(BANDAI_PREFIX)))
+    if takes.entries:
+        by_take = unicon_take_split(takes, seed=ex.split_seed)
+        keep |= set(by_take.train if ex.split == "train" else by_take.test)
     return [(c, lab) for c, lab in every if source_id(c) in keep]
 
 

@@ -114,14 +114,14 @@ def _with_executor(cfg: TaskConfig, **changes) -> TaskConfig:
 
 
 def split_tags(cfg: TaskConfig) -> dict[str, str]:
-    """{clip_id: "train" | "test" | "unused"} for every humanoid clip and its mirror image (see
+    """{clip_id: "train" | "test" | "unused"} for every clip of the checkpoint's library and its mirror image (see
     `SPLITS`), from the checkpoint's task config: its clip list or split (and split seed), and
     whether it trained on mirror images (without, a train clip's mirror is "unused")."""
     from common.tasks.executor.env import humanoid_clips, labelled_clips
 
     trained = {c for c, _ in labelled_clips(cfg)}
     held_out = {c for c, _ in labelled_clips(_with_executor(cfg, clips=(), split="test"))}
-    return {c: "train" if c in trained else "test" if c in held_out else "unused" for c, _ in humanoid_clips(mirror=True)}
+    return {c: "train" if c in trained else "test" if c in held_out else "unused" for c, _ in humanoid_clips(mirror=True, library=cfg.executor.library)}
 
 
 def default_clips(cfg: TaskConfig, splits: Iterable[str] = ("train", "test", "unused")) -> list[EvalClip]:
@@ -130,7 +130,8 @@ def default_clips(cfg: TaskConfig, splits: Iterable[str] = ("train", "test", "un
     from common.tasks.executor.env import humanoid_clips
 
     tags, keep = split_tags(cfg), set(splits)
-    return [EvalClip(c, label, tags[c]) for c, label in humanoid_clips(mirror=cfg.executor.mirror) if tags[c] in keep]
+    return [EvalClip(c, label, tags[c]) for c, label in humanoid_clips(mirror=cfg.executor.mirror, library=cfg.executor.library)
+            if tags[c] in keep]
 
 
 def classify_clip_value(text: str) -> tuple[str, str]:
@@ -138,7 +139,7 @@ def classify_clip_value(text: str) -> tuple[str, str]:
     an unknown id, a missing file, a folder holding no `.npz` clips."""
     from common.tasks.executor.env import humanoid_clips
 
-    ids = [c for c, _ in humanoid_clips(mirror=True)]
+    ids = [c for c, _ in humanoid_clips(mirror=True, library="full")]
     if text in ids:
         return "id", text
     path = Path(text)
@@ -178,14 +179,14 @@ def resolve_clips(values: Iterable[str], cfg: TaskConfig) -> list[EvalClip]:
     `imported/<file stem>`. Raises ClipSelectionError (naming the value) or ClipError."""
     from common.tasks.executor.env import humanoid_clips
 
-    tags, labels = split_tags(cfg), dict(humanoid_clips(mirror=True))
+    tags, labels = split_tags(cfg), dict(humanoid_clips(mirror=True, library="full"))
     out: list[EvalClip] = []
     seen: set[str] = set()
     for value in values:
         kind, text = classify_clip_value(value)
         if kind == "id":
             if text not in seen:
-                out.append(EvalClip(text, labels[text], tags[text]))
+                out.append(EvalClip(text, labels[text], tags.get(text, "unused")))  # a clip of another library: never trained on
                 seen.add(text)
             continue
         files = sorted(Path(text).glob("*.npz")) if kind == "folder" else [Path(text)]

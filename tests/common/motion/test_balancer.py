@@ -22,7 +22,7 @@ def test_small_tree_exact():
 
 
 def test_repository_clips_exact():
-    clips = load_clip_labels()
+    clips = [c for c in load_clip_labels() if not c[0].startswith("humanoid/bandai/")]  # those: test_bandai.py
     b = MotionBalancer(clips)
     p = b.exact_probabilities
     assert len(p) == len(clips) == 32

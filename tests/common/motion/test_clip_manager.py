@@ -35,4 +35,4 @@ def test_reweight_and_given_probabilities():
     assert u.clip_ids == ("a", "b") and u.draw_clip(np.random.default_rng(0)) in ("a", "b")
     with pytest.raises(ValueError, match="one per clip"):
         ClipManager.with_probabilities(["a", "b"], np.ones(3))
-    assert len(ClipManager(load_clip_labels()).table().splitlines()) == 32
+    assert len(ClipManager(load_clip_labels()).table().splitlines()) == len(load_clip_labels())  # a line per clip

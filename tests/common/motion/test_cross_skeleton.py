@@ -237,7 +237,7 @@ def test_local_floor_follows_a_linear_drift():
 
 
 def test_clips_for_the_humanoid_lists_24_clips_in_manifest_order():
-    clips = clips_for("humanoid")
+    clips = [c for c in clips_for("humanoid") if not c[0].startswith("humanoid/bandai/")]  # test_bandai.py
     assert len(clips) == 24
     ids = [c for c, _ in clips]
     manifest_ids = [e.id for e in load_manifest().entries]

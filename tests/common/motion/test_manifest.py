@@ -8,8 +8,8 @@ from common.motion.manifest import load_manifest, unicon_split
 
 def test_manifest_has_all_clips_and_a_label_tree():
     m = load_manifest()
-    assert len(m.entries) == 32  # 16 DeepMimic, 8 MASS on the biped, the same 8 on the humanoid
-    assert sum(e.character == "humanoid" for e in m.entries) == 24
+    assert len(m.entries) == 32 + 454  # 16 DeepMimic, 8 MASS on the biped, the same 8 on the humanoid, 454 Bandai Namco
+    assert sum(e.character == "humanoid" for e in m.entries) == 24 + 454
     assert [e.id for e in m.entries if e.retarget_from == "mass"] == [
         f"humanoid/mass_{n}" for n in ("backflip", "balance", "cart", "dance", "kick", "pirouette", "run", "walk")]
     tree = m.label_tree()

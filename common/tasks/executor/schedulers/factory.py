@@ -82,5 +82,5 @@ def _known_clips(env: Any) -> list[str]:
     clips registered on it."""
     from common.tasks.executor.env import humanoid_clips
 
-    known = [c for c, _ in humanoid_clips(mirror=True)]
+    known = [c for c, _ in humanoid_clips(mirror=True, library="full")]
     return known + [c for c in env._motions if c not in set(known)]
