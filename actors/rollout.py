@@ -1,6 +1,6 @@
-"""`RolloutWorker`: a batch of environments stepped in lockstep by one batched policy forward
-per control step, packed into `UnrollMsg`s. No sockets here: the actor process (or the serial
-driver) moves the messages.
+"""`RolloutWorker`: a batch of environments (`common.tasks.batch.BatchEnv`) stepped in lockstep
+by one batched policy forward per control step, packed into `UnrollMsg`s. No sockets here: the
+actor process (or the serial driver) moves the messages.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from actors.config import ActorConfig
 from common import wire
 from common.policy import GaussianPolicy, PolicyConfig, load_policy_tensors
 from common.tasks.base import TaskConfig
-from common.tasks.registry import make_env
+from common.tasks.registry import make_batch_env
 
 DrawFn = Callable[[], tuple[np.ndarray, str | None]]
 """Returns the next episode's parameter vector and clip id (or None)."""
@@ -33,19 +33,19 @@ class RolloutWorker:
         self.actor_id = actor_id
         self.cfg = cfg
         self.draw = draw
-        self.envs = [make_env(task, seed=seed * 10_007 + i) for i in range(cfg.envs_per_actor)]
-        env = self.envs[0]
-        self.obs_dim, self.act_dim, self.n_params = env.obs_dim, env.act_dim, env.space.dim
+        self.batch = make_batch_env(task, [seed * 10_007 + i for i in range(cfg.envs_per_actor)])
+        self.n_envs = self.batch.n
+        self.obs_dim, self.act_dim, self.n_params = self.batch.obs_dim, self.batch.act_dim, self.batch.space.dim
         self.policy = GaussianPolicy(self.obs_dim, self.act_dim, policy_cfg)
         self.policy_version = -1
         self.seq = 0
         self.env_steps = 0
         self.rng = np.random.default_rng(seed)
-        self._obs = np.zeros((len(self.envs), self.obs_dim), np.float32)
-        self._params = np.zeros((len(self.envs), self.n_params), np.float32)
-        self._ep_return = np.zeros(len(self.envs))
-        self._ep_length = np.zeros(len(self.envs), np.int64)
-        for i in range(len(self.envs)):
+        self._obs = np.zeros((self.n_envs, self.obs_dim), np.float32)
+        self._params = np.zeros((self.n_envs, self.n_params), np.float32)
+        self._ep_return = np.zeros(self.n_envs)
+        self._ep_length = np.zeros(self.n_envs, np.int64)
+        for i in range(self.n_envs):
             self._reset_env(i)
 
     def set_weights(self, msg: wire.WeightsMsg) -> None:
@@ -54,15 +54,14 @@ class RolloutWorker:
 
     def _reset_env(self, i: int) -> None:
         params, clip_id = self.draw()
-        obs, _ = self.envs[i].reset(int(self.rng.integers(2**31)), params, clip_id)
-        self._obs[i] = obs
+        self._obs[i] = self.batch.reset_one(i, int(self.rng.integers(2**31)), params, clip_id)
         self._params[i] = params
         self._ep_return[i] = 0.0
         self._ep_length[i] = 0
 
     def collect(self) -> wire.UnrollMsg:
         """Step every environment `unroll_length` times; return the unroll."""
-        T, N = self.cfg.unroll_length, len(self.envs)
+        T, N = self.cfg.unroll_length, self.n_envs
         obs = np.zeros((T, N, self.obs_dim), np.float32)
         next_obs = np.zeros_like(obs)
         actions = np.zeros((T, N, self.act_dim), np.float32)
@@ -83,14 +82,14 @@ class RolloutWorker:
                 act = np.nan_to_num(act, nan=0.0, posinf=0.0, neginf=0.0)
                 lp = np.nan_to_num(lp, nan=0.0)
             actions[t], logp[t] = act, lp
-            for i, env in enumerate(self.envs):
-                o, r, term, trunc, info = env.step(act[i])
-                diverged = bool(info.get("diverged")) or not np.isfinite(o).all() or not np.isfinite(r)
+            step_obs, step_rewards, step_term, step_trunc, infos = self.batch.step(act)
+            for i in range(N):
+                o, r, term, trunc = step_obs[i], float(step_rewards[i]), bool(step_term[i]), bool(step_trunc[i])
+                diverged = bool(infos[i].get("diverged")) or not np.isfinite(o).all() or not np.isfinite(r)
                 if diverged:
-                    # The simulator failed: the episode terminates with reward 0 (as the tasks'
-                    # `diverged_step`), so the policy learns to avoid what blows the simulation up
-                    # rather than being paid its value. The guard also covers a non-finite
-                    # observation or reward a task did not flag; next_obs keeps the last good one.
+                    # The simulator failed: the episode ends with no future (METHOD.md A lists
+                    # simulation failure with the falls among the terminations), so the policy
+                    # learns to avoid what blows the simulation up rather than being paid its value.
                     divergences += 1
                     o, r, term, trunc = self._obs[i], 0.0, True, False
                 next_obs[t, i] = o
@@ -105,7 +104,7 @@ class RolloutWorker:
                 else:
                     self._obs[i] = o
         self.env_steps += T * N
-        segments = [seg for env in self.envs if hasattr(env, "drain_segments") for seg in env.drain_segments()]
+        segments = self.batch.drain_segments()
         msg = wire.UnrollMsg(
             actor_id=self.actor_id,
             seq=self.seq,

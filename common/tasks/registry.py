@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass
+from typing import Sequence
 
 from common.params import ParamSpace
 from common.tasks.base import Env, TaskConfig
+from common.tasks.batch import BatchEnv, LoopBatch
 
 SHAPE_COMMANDS = ("train", "curriculum", "evaluate", "ablation", "learning-curve", "robustness", "play", "studio")
 EXECUTOR_COMMANDS = ("train", "distill", "evaluate", "ablation", "learning-curve", "robustness", "velocity-probe",
@@ -24,6 +26,9 @@ class TaskEntry:
     """The environment class as `module:Class`."""
     family: str
     commands: tuple[str, ...]
+    batch: str = ""
+    """The task's batched environment class as `module:Class` (`common.tasks.batch.BatchEnv`,
+    built as `Class(cfg, seeds)`); empty: a `LoopBatch` of single environments."""
 
 
 TASKS: dict[str, TaskEntry] = {
@@ -48,6 +53,17 @@ def _env_class(name: str) -> type:
 
 def make_env(cfg: TaskConfig, seed: int = 0) -> Env:
     return _env_class(cfg.name)(cfg, seed)
+
+
+def make_batch_env(cfg: TaskConfig, seeds: Sequence[int]) -> BatchEnv:
+    """The task's N = len(seeds) environments as one batch: its own batched class if it
+    registers one (`TaskEntry.batch`), else a `LoopBatch`; environment i behaves as
+    `make_env(cfg, seeds[i])`."""
+    path = task_entry(cfg.name).batch
+    if not path:
+        return LoopBatch([make_env(cfg, seed) for seed in seeds])
+    module, cls = path.split(":")
+    return getattr(importlib.import_module(module), cls)(cfg, list(seeds))
 
 
 def task_space(cfg: TaskConfig) -> ParamSpace:

@@ -32,7 +32,7 @@ def test_unroll_shapes_and_episode_statistics():
 
 def test_divergence_terminates_resets_and_is_counted():
     w = _worker(envs=2, T=5)
-    w.envs[0].model.actuator_gear[:, 0] = 1e30  # a torque MuJoCo cannot integrate
+    w.batch.envs[0].model.actuator_gear[:, 0] = 1e30  # a torque MuJoCo cannot integrate
     msg = w.collect()
     assert msg.divergences >= 1
     assert msg.terminated[:, 0].any() and not msg.truncated[:, 0].any()  # no bootstrap from a blow-up
