@@ -3,7 +3,12 @@
 The client sends a request, polls for the reply with a timeout, and on timeout closes its
 socket, looks the endpoint up again (the service may have moved or restarted) and retries.
 The server decodes each request with the wire codec; a malformed one gets an `ErrorMsg`
-reply and is counted per kind, and the server keeps serving.
+reply and is counted per kind, and the server keeps serving. No peer can block it: every reply
+is sent without waiting (a peer whose pipe is full, because it does not read its replies, loses
+that reply, counted under `dropped/full_pipe`; one that has gone, under `dropped/departed`), and
+a peer with `MAX_BACKLOG` unread replies in a row has its further requests dropped unanswered
+(`dropped/over_backlog`), all but every `MAX_BACKLOG`-th, whose reply going through shows that
+the peer reads again and lifts the bound.
 """
 
 from __future__ import annotations
@@ -81,8 +86,16 @@ class RpcClient:
             self._sock = None
 
 
+MAX_BACKLOG = 64
+"""Replies a peer may leave unread in a row (each dropped on its full pipe) before the server
+stops answering it: a peer that never reads costs the server no more than this."""
+MAX_PEERS_TRACKED = 4096
+"""Peers whose backlog is remembered; the oldest is forgotten beyond this (identities are per connection)."""
+
+
 class RouterServer:
-    """Decode-dispatch-reply on a bound ROUTER socket; never raises on a peer's bad input."""
+    """Decode-dispatch-reply on a bound ROUTER socket; never raises on a peer's bad input and
+    never blocks on a peer that does not read (see the module docstring)."""
 
     def __init__(self, sock: zmq.Socket, handler: Callable[[Any], Any], name: str,
                  dims: dict[str, int] | None = None, roles: dict[type, frozenset[str]] | None = None):
@@ -99,8 +112,11 @@ class RouterServer:
         self.refusals = RefusalCounter(sock) if self.secured else None
         self.rejected: collections.Counter[str] = collections.Counter()
         self.served = 0
-        self.undeliverable = 0
-        """Replies to peers that had gone (a client that timed out and reconnected)."""
+        self.dropped: collections.Counter[str] = collections.Counter()
+        """Replies not delivered, by reason: `full_pipe` (the peer does not read), `departed` (it
+        had gone: a client that timed out and reconnected), `over_backlog` (requests of a peer past
+        `MAX_BACKLOG` unread replies, dropped unanswered)."""
+        self._backlog: collections.OrderedDict[bytes, int] = collections.OrderedDict()
 
     def serve_pending(self, timeout_ms: int = 0, max_requests: int = 1000) -> int:
         """Answer requests that arrive within `timeout_ms`; returns how many were handled."""
@@ -111,6 +127,13 @@ class RouterServer:
             frames = self.sock.recv_multipart(copy=False)
             handled += 1
             identity = frames[0].bytes
+            backlog = self._backlog.get(identity, 0)
+            if backlog >= MAX_BACKLOG:
+                self._backlog[identity] = backlog + 1
+                if (backlog - MAX_BACKLOG) % MAX_BACKLOG != MAX_BACKLOG - 1:
+                    self.dropped["over_backlog"] += 1
+                    continue
+                # every MAX_BACKLOG-th request of such a peer is answered: a reply that goes through shows it reads again
             # DEALER clients put an empty delimiter frame first; tolerate REQ-style and bare ones.
             body = frames[2:] if len(frames) > 1 and len(frames[1].bytes) == 0 else frames[1:]
             try:
@@ -121,12 +144,30 @@ class RouterServer:
             except Exception as exc:  # noqa: BLE001 - nothing a peer sends may stop the service
                 reply = wire.encode(self._refuse(exc))
             self.served += 1
-            try:
-                self.sock.send_multipart([identity, b"", *reply], copy=False)
-            except zmq.ZMQError as exc:  # EHOSTUNREACH with ROUTER_MANDATORY: the peer left
-                self.undeliverable += 1
-                log.debug("%s: could not reply to a departed peer: %s", self.name, exc)
+            self._reply(identity, reply)
         return handled
+
+    def _reply(self, identity: bytes, reply: list) -> None:
+        """Send without waiting; a reply that cannot go now is dropped and counted (see the module docstring)."""
+        try:
+            self.sock.send_multipart([identity, b"", *reply], flags=zmq.NOBLOCK, copy=False)
+        except zmq.Again:  # the peer's pipe is full: it does not read its replies
+            self.dropped["full_pipe"] += 1
+            self._backlog[identity] = max(self._backlog.pop(identity, 0), 0) + 1
+            while len(self._backlog) > MAX_PEERS_TRACKED:
+                self._backlog.popitem(last=False)
+            return
+        except zmq.ZMQError as exc:  # EHOSTUNREACH with ROUTER_MANDATORY: the peer left
+            self.dropped["departed"] += 1
+            self._backlog.pop(identity, None)
+            log.debug("%s: could not reply to a departed peer: %s", self.name, exc)
+            return
+        self._backlog.pop(identity, None)
+
+    @property
+    def undeliverable(self) -> int:
+        """Replies not delivered, every reason."""
+        return sum(self.dropped.values())
 
     def _check_role(self, request: Any, role: str) -> None:
         allowed = self.roles.get(type(request))
