@@ -334,5 +334,7 @@ def _wire_metrics(transport: LearnerTransport, learner: Learner, pool) -> dict[s
     for k, v in c.items():
         if k.startswith("rejected/"):
             out[f"wire/{k}"] = float(v)
+    for reason, count in transport.snapshots.dropped.items():  # weights replies a peer did not take
+        out[f"wire/snapshot_replies_dropped/{reason}"] = float(count)
     return out
 

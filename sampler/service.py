@@ -170,14 +170,17 @@ class SamplerService:
         raise wire.WireError(f"the sampler does not answer {type(msg).KIND!r} messages", "unknown_kind")
 
     def stats(self) -> dict[str, float]:
-        """`ShapeSampler.stats()` plus `requests/served`, `requests/rejected` (all kinds) and
-        `requests/rejected/<kind>` (malformed, version, unknown_kind, nonfinite, invalid, ...)."""
+        """`ShapeSampler.stats()` plus `requests/served`, `requests/rejected` (all kinds),
+        `requests/rejected/<kind>` (malformed, version, unknown_kind, nonfinite, invalid, ...) and
+        `requests/replies_dropped/<reason>` (full_pipe, departed, over_backlog)."""
         out = self.sampler.stats()
         out["reports/duplicates"] = float(self.duplicate_reports)
         out["requests/served"] = float(self.server.served)
         out["requests/rejected"] = float(sum(self.server.rejected.values()))
         for kind, count in sorted(self.server.rejected.items()):
             out[f"requests/rejected/{kind}"] = float(count)
+        for reason, count in sorted(self.server.dropped.items()):  # replies a peer did not take (common.rpc)
+            out[f"requests/replies_dropped/{reason}"] = float(count)
         return out
 
     def serve_pending(self, timeout_ms: int = 0) -> int:
