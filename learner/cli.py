@@ -10,6 +10,8 @@ import importlib
 import sys
 from collections.abc import Callable
 
+from common.version import version
+
 COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("learner.main", "train a controller (same as `python -m learner.main`)"),
     "distill": ("learner.distill", "start a torque executor from a PD executor (DAgger), to train on with --resume"),
@@ -53,7 +55,11 @@ def dispatch(prog: str, what: str, table: dict[str, tuple[str | Callable[[list[s
 
 
 def main(argv: list[str] | None = None) -> int:
-    return dispatch("morphmimic", "command", COMMANDS, list(sys.argv[1:] if argv is None else argv))
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] in (["--version"], ["-V"]):
+        print(f"morphmimic {version()}")
+        return 0
+    return dispatch("morphmimic", "command", COMMANDS, argv)
 
 
 if __name__ == "__main__":

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import sys
 from dataclasses import dataclass
+from pathlib import Path
 from typing import ClassVar
 
 import tyro
@@ -84,6 +85,7 @@ def main(argv: list[str]) -> int:
             key = ch.spec.add_key(name=name, qpos=list(ch.standing_qpos))
             try:
                 ch.spec.compile()
+                Path(args.mjcf).parent.mkdir(parents=True, exist_ok=True)
                 with open(args.mjcf, "w") as f:
                     f.write(ch.spec.to_xml())
             finally:
@@ -92,6 +94,7 @@ def main(argv: list[str]) -> int:
         if args.png:
             from common.characters.render import render_png
 
+            Path(args.png).parent.mkdir(parents=True, exist_ok=True)
             render_png(ch, args.png)
             print(f"wrote {args.png}")
     except (ShapeError, ValueError) as exc:
