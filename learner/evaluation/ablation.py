@@ -10,14 +10,8 @@ chooses (`learner/evaluation/registry.py`); each table refuses checkpoints of th
 
 from __future__ import annotations
 
-import sys
-
 from learner.evaluation.registry import dispatch
 
 
 def main(argv: list[str]) -> int:
     return dispatch("ablation", argv, "--checkpoints")
-
-
-if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))

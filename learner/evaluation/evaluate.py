@@ -11,14 +11,8 @@ clip (`learner/evaluation/executor/report.py`). Which one runs is the task's fam
 
 from __future__ import annotations
 
-import sys
-
 from learner.evaluation.registry import dispatch
 
 
 def main(argv: list[str]) -> int:
     return dispatch("evaluate", argv, "--checkpoint")
-
-
-if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))

@@ -1,6 +1,7 @@
 """What every evaluation runs on, whatever its task: the task as evaluated (`eval_task`), the
-zero-action baseline (`ZeroPolicy`), a pool of processes running episodes (`run_jobs`) and the
-ablation commands' outputs (`write_ablation`)."""
+zero-action baseline (`ZeroPolicy`), a pool of processes running episodes (`run_jobs`), the
+ablation commands' outputs (`write_ablation`) and two helpers of their options (`one_value`,
+`changed_flags`)."""
 
 from __future__ import annotations
 
@@ -11,8 +12,25 @@ from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
+from tyro.constructors import PrimitiveConstructorSpec
 
+from common.config_limits import flag
 from common.tasks.base import TaskConfig
+
+
+def one_value(parse: Callable[[str], tuple], metavar: str, show: Callable[[tuple], str]) -> PrimitiveConstructorSpec:
+    """A flag taking one value that `parse` reads as a tuple (`--rows speed,mass`, `--schedule
+    '[[0, {}], ...]'`); the message of the ValueError `parse` raises is the parse error, so it
+    should name the value and what is allowed. `show` writes a value back (the default in --help)."""
+    return PrimitiveConstructorSpec(nargs=1, metavar=metavar, instance_from_str=lambda args: parse(args[0]),
+                                    is_instance=lambda v: isinstance(v, tuple), str_from_instance=lambda v: [show(v)])
+
+
+def changed_flags(opts: Any, names: tuple[str, ...], flags: dict[str, str] | None = None) -> list[str]:
+    """The flags of the fields `names` of the options dataclass `opts` that hold other values than
+    their defaults (options given that do not apply), each `--field-name` unless `flags` names it."""
+    defaults = {f.name: f.default for f in dataclasses.fields(opts)}
+    return [(flags or {}).get(n) or flag("", n) for n in names if getattr(opts, n) != defaults[n]]
 
 
 def check_box_scale(box_scale: float) -> float:

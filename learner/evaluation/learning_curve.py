@@ -1,4 +1,4 @@
-"""The learning curve of a run (issue 6 item 7, issue 20): every checkpoint evaluated the same
+"""The learning curve of a run: every checkpoint evaluated the same
 way, against environment steps and wall time. A shape controller's run: fall-down % and task
 achievement on the same random shapes. A motion executor's run: UniCon's success % per split
 (train, held-out test), as `morphmimic evaluate` measures it (`executor_curve.py`).
@@ -7,8 +7,8 @@ achievement on the same random shapes. A motion executor's run: UniCon's success
     morphmimic learning-curve --ckpt-dir runs/executor-pd-arm/ckpt --starts 10 --every 10 --workers 2
 
 Wall time of a checkpoint: the training seconds it records (summed over every session of a
-resumed run, so pauses between sessions do not count). Checkpoints written before that was
-recorded fall back to the file's modification time minus `--start` (default: the modification
+resumed run, so pauses between sessions do not count). A checkpoint that does not record it
+falls back to the file's modification time minus `--start` (default: the modification
 time of the run's `config.json`, written when training starts; pass the run directory with
 `--run-dir`). Writes `curve.json` (after every checkpoint) and `curve.png` into `--out` and
 prints where the run first reached `--target`. Rows of an earlier `curve.json` in `--out` made
@@ -23,7 +23,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import sys
 from dataclasses import dataclass
 from typing import ClassVar
 from pathlib import Path
@@ -32,16 +31,14 @@ import numpy as np  # noqa: E402
 
 from learner import checkpoint
 
-from common.config_limits import Limit, above, at_least, between, check_limits, validated  # noqa: E402
-from learner.cli_options import parse_options  # noqa: E402
+from common.config_limits import SEED, Limit, above, at_least, between, check_limits, validated  # noqa: E402
+from learner.cli_options import parse_options, refuse  # noqa: E402
 from learner.evaluation import harness, registry  # noqa: E402
 from learner.evaluation.shape import episodes
 
 from learner.evaluation.executor import curve as executor_curve
 
-
-SEED_LIMIT = 2**32
-"""Seeds are below this: torch's manual_seed overflows past 2^64, numpy's generators refuse negatives."""
+PROG = "morphmimic learning-curve"
 
 
 @validated
@@ -58,7 +55,7 @@ class CurveOptions:
     episode_s: float | None = None
     """Shape controllers: episode length, s (default 10)."""
     seed: int | None = None
-    """Shape controllers: the shapes' seed, in [0, 2^32) (default 2019)."""
+    """Shape controllers: the shapes' seed (default 2019)."""
     box_scale: float | None = None
     """Shape controllers: shapes from the box shrunk toward the base shape (a curriculum's progress;
     default 1: the whole box)."""
@@ -76,24 +73,16 @@ class CurveOptions:
 
     LIMITS: ClassVar[dict[str, Limit]] = {
         "start": at_least(0.0, integer=False), "shapes": at_least(1), "episode_s": above(0.0),
-        "seed": between(0, SEED_LIMIT, hi_open=True, integer=True), "box_scale": between(0.0, 1.0, lo_open=True),
+        "seed": SEED, "box_scale": between(0.0, 1.0, lo_open=True),
         "starts": at_least(1), "every": at_least(1), "workers": at_least(1), "target": between(0.0, 100.0)}
     FLAG_PREFIX: ClassVar[str] = ""
 
     def validate(self) -> None:
-        if self.seed is not None and not (isinstance(self.seed, int) and 0 <= self.seed < SEED_LIMIT):
-            raise ValueError(f"--seed = {self.seed!r} is not allowed: give an integer >= 0 and below 2^32")
         check_limits(self)
 
 
-def _usage_error(text: str) -> None:
-    """One line `morphmimic learning-curve: text` on stderr and exit 2, as a bad option."""
-    print(f"morphmimic learning-curve: {text}", file=sys.stderr)
-    raise SystemExit(2)
-
-
 def main(argv: list[str]) -> int:
-    args = parse_options(CurveOptions, argv, prog="morphmimic learning-curve", description=__doc__)
+    args = parse_options(CurveOptions, argv, prog=PROG, description=__doc__)
     ckpts = checkpoint.list_checkpoints(Path(args.ckpt_dir))
     if not ckpts:
         raise SystemExit(f"--ckpt-dir {args.ckpt_dir}: no checkpoints")
@@ -103,15 +92,15 @@ def main(argv: list[str]) -> int:
     if executor:
         misplaced = [flag for flag, value in kind_flags.items() if value is not None]
         if misplaced:
-            _usage_error(f"{', '.join(misplaced)}: options of a shape controller's curve; {newest.name} is an executor "
-                    "run (its curve takes --starts)")
+            refuse(PROG, f"{', '.join(misplaced)}: options of a shape controller's curve; {newest.name} is an executor "
+                         "run (its curve takes --starts)")
         args = dataclasses.replace(args, starts=args.starts or 10,
                                    target=executor_curve.DEFAULT_TARGET if args.target is None else args.target)
         proto = executor_curve.protocol(newest, args.starts)
     else:
         if args.starts is not None:
-            _usage_error(f"--starts: an option of an executor's curve; {newest.name} is a {newest.cfg.task.name} run "
-                    "(its curve takes --shapes, --episode-s, --box-scale)")
+            refuse(PROG, f"--starts: an option of an executor's curve; {newest.name} is a {newest.cfg.task.name} run "
+                         "(its curve takes --shapes, --episode-s, --box-scale)")
         args = dataclasses.replace(args, shapes=args.shapes or 100, episode_s=args.episode_s or 10.0,
                                    seed=2019 if args.seed is None else args.seed,
                                    box_scale=1.0 if args.box_scale is None else args.box_scale,
@@ -301,7 +290,3 @@ def _plot(rows: list[dict], path: Path, args) -> None:
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
-
-
-if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))

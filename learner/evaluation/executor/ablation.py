@@ -17,17 +17,30 @@ table goes to `<out>/ablation.md` and `<out>/ablation.json` and is printed.
 
 from __future__ import annotations
 
-import argparse
 import json
-import sys
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
-from learner.evaluation import cli_args, harness
+from common.config_limits import validated
+from learner.cli_options import parse_options, refuse, value_list
+from learner.evaluation import harness
 from learner import checkpoint
 
 from learner.evaluation.executor import evaluate as xe
 
 from learner.evaluation.executor import report as executor_report
+
+PROG = "morphmimic ablation"
+
+
+@validated
+@dataclass(kw_only=True)
+class ExecutorAblationOptions(executor_report.ClipOptions):
+    checkpoints: Annotated[tuple[str, ...], value_list(str, "CHECKPOINT", nargs="+")]
+    """Executor checkpoints or run directories to compare."""
+    out: str = "ablation"
+    """Output directory."""
 
 
 def settings(cfg) -> str:
@@ -53,13 +66,13 @@ def settings(cfg) -> str:
     return " · ".join(words)
 
 
-def evaluate_arm(ckpt: str, out: Path, folder: str, p: argparse.ArgumentParser, args: argparse.Namespace) -> dict:
+def evaluate_arm(ckpt: str, out: Path, folder: str, args: ExecutorAblationOptions) -> dict:
     """Evaluate one arm into `<out>/<folder>`, or reuse a matching results.json there."""
     loaded = checkpoint.load_trained(ckpt)
     if loaded.cfg.task.name != "executor":
-        p.error(f"--checkpoints {ckpt}: task {loaded.cfg.task.name!r} is not the executor; compare executor "
-                "checkpoints with executor checkpoints")
-    clips = executor_report.select_clips(p, args.clips, loaded)
+        refuse(PROG, f"--checkpoints {ckpt}: task {loaded.cfg.task.name!r} is not the executor; compare executor "
+                     "checkpoints with executor checkpoints")
+    clips = executor_report.select_clips(PROG, args.clips, loaded)
     target = out / folder
     res_file = target / "results.json"
     if res_file.exists():
@@ -101,19 +114,11 @@ def _folders(loaded: list[checkpoint.Loaded]) -> list[str]:
 
 
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog="morphmimic ablation", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--checkpoints", nargs="+", required=True, help="executor checkpoints or run directories to compare")
-    p.add_argument("--out", default="ablation", help="output directory")
-    p.add_argument("--clips", nargs="+", type=cli_args.clip_source, default=None, metavar="CLIP",
-                   help="clip ids, clip files or folders of .npz clips (default: every humanoid clip, by split)")
-    p.add_argument("--starts", type=cli_args.positive_int, default=10, help="start frames per clip")
-    p.add_argument("--workers", type=cli_args.positive_int, default=1, help="processes running episodes")
-    args = p.parse_args(argv)
+    args = parse_options(ExecutorAblationOptions, argv, prog=PROG, description=__doc__)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     loaded = [checkpoint.load_trained(c) for c in args.checkpoints]
-    rows = [evaluate_arm(c, out, folder, p, args) for c, folder in zip(args.checkpoints, _folders(loaded))]
+    rows = [evaluate_arm(c, out, folder, args) for c, folder in zip(args.checkpoints, _folders(loaded))]
     first = rows[0]["summary"]["overall"]
     text = "\n".join([
         "# Ablations (executor)", "",
@@ -133,6 +138,3 @@ def main(argv: list[str]) -> int:
                                           "summary": r["summary"]} for r in rows])
     return 0
 
-
-if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))

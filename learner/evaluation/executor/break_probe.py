@@ -23,13 +23,15 @@ hands, head) carrying the joint-position error. Prints a markdown table; `--out`
 
 from __future__ import annotations
 
-import sys
 from collections import Counter, defaultdict
 from typing import Any
 
 import numpy as np
 
+from learner.cli_options import parse_options
 from learner.evaluation.executor import probe_cli
+
+PROG = "morphmimic break-probe"
 
 
 def rotation_angle(a: np.ndarray, b: np.ndarray) -> float:
@@ -147,17 +149,12 @@ def report(name: str, rows: dict[str, dict]) -> str:
 def main(argv: list[str]) -> int:
     import mujoco
 
-    p = probe_cli.parser("morphmimic break-probe", __doc__)
-    args = p.parse_args(argv)
-    opened = probe_cli.open_checkpoint(p, args)
+    args = parse_options(probe_cli.ProbeOptions, argv, prog=PROG, description=__doc__)
+    opened = probe_cli.open_checkpoint(PROG, args)
     model = opened.env.ref_model
     bodies = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, int(b)) for b in opened.env.bodies[1:]]
     rows = {split: probe_split(opened, split, args.starts, bodies) for split in args.splits}
     text = report(opened.title, rows)
-    probe_cli.write(args.out, "break_probe", text, {"settings": args.settings, "splits": rows})
+    probe_cli.write(args.out, "break_probe", text, {"settings": list(args.settings), "splits": rows})
     print(text)
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))

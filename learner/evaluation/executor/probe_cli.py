@@ -4,28 +4,40 @@ open, the loop over every split's episodes, and where the table goes."""
 
 from __future__ import annotations
 
-import argparse
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, ClassVar, Literal
 
-from learner.evaluation import cli_args
+from common.config_limits import Limit, at_least, check_limits, validated
+from learner.cli_options import refuse
+from learner.evaluation.executor.report import Settings
+
+Split = Literal["train", "test", "unused"]
 
 
-def parser(prog: str, doc: str | None) -> argparse.ArgumentParser:
-    """An argument parser with the options every probe takes: --checkpoint, --starts, --splits,
-    --out and --set."""
-    from learner.evaluation.executor import evaluate as xe
+@validated
+@dataclass(kw_only=True)
+class ProbeOptions:
+    """The options every probe takes (`morphmimic velocity-probe`, `morphmimic break-probe`)."""
 
-    p = argparse.ArgumentParser(prog=prog, description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--checkpoint", required=True, help="checkpoint dir, state.pt or run dir of an executor run")
-    p.add_argument("--starts", type=cli_args.positive_int, default=10, help="start frames per clip (the evaluation's)")
-    p.add_argument("--splits", nargs="+", choices=("train", "test", "unused"), default=["train", "test"])
-    p.add_argument("--out", default="", help="output directory (default: none, print only)")
-    p.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE", dest="settings",
-                   help=f"probe with these executor config fields changed (as `morphmimic evaluate --set`): {', '.join(xe.SETTABLE)}")
-    return p
+    checkpoint: str
+    """Checkpoint dir, state.pt or run dir of an executor run."""
+    starts: int = 10
+    """Start frames per clip (the evaluation's)."""
+    splits: tuple[Split, ...] = ("train", "test")
+    """The splits whose clips are probed."""
+    out: str = ""
+    """Output directory (default: none, print only)."""
+    settings: Settings = ()
+
+    LIMITS: ClassVar[dict[str, Limit]] = {"starts": at_least(1)}
+    FLAG_PREFIX: ClassVar[str] = ""
+
+    def validate(self) -> None:
+        if not self.splits:
+            raise ValueError("--splits: give one or more of train, test, unused")
+        check_limits(self)
 
 
 @dataclass
@@ -44,33 +56,33 @@ UNREAD_SETTINGS = ("terminate_on", "reward_weights")
 own rule; every probe reads the five terms against alpha itself)."""
 
 
-def open_checkpoint(p: argparse.ArgumentParser, args: argparse.Namespace) -> Opened:
-    """Load `args.checkpoint`; a usage error (exit 2) naming the value when it is no executor, a
-    `--set` pair is bad or changes nothing the probe reads, a split holds no clips or `--out`
-    cannot be written, before any episode runs. Repeated `--splits` are run once."""
+def open_checkpoint(prog: str, args: ProbeOptions) -> Opened:
+    """Load `args.checkpoint`; a usage error of `prog` (exit 2) naming the value when it is no
+    executor, a `--set` pair is bad or changes nothing the probe reads, a split holds no clips or
+    `--out` cannot be written, before any episode runs. Repeated `--splits` are run once."""
     from learner import checkpoint
     from learner.evaluation.executor import evaluate as xe
 
-    args.splits = list(dict.fromkeys(args.splits))
+    args.splits = tuple(dict.fromkeys(args.splits))
     if args.out:
         try:
             Path(args.out).mkdir(parents=True, exist_ok=True)
         except OSError as exc:
-            p.error(f"--out {args.out}: cannot make that folder ({exc.strerror or exc})")
+            refuse(prog, f"--out {args.out}: cannot make that folder ({exc.strerror or exc})")
     unread = [pair for pair in args.settings if pair.partition("=")[0].strip().replace("-", "_") in UNREAD_SETTINGS]
     if unread:
-        p.error(f"--set {' '.join(unread)}: no figure of the probe depends on {', '.join(UNREAD_SETTINGS)}")
+        refuse(prog, f"--set {' '.join(unread)}: no figure of the probe depends on {', '.join(UNREAD_SETTINGS)}")
     loaded = checkpoint.load_trained(args.checkpoint)
     if loaded.cfg.task.name != "executor":
-        p.error(f"--checkpoint {args.checkpoint} is a {loaded.cfg.task.name!r} checkpoint; the probe needs an executor")
+        refuse(prog, f"--checkpoint {args.checkpoint} is a {loaded.cfg.task.name!r} checkpoint; the probe needs an executor")
     try:
-        loaded = xe.with_settings(loaded, args.settings)
+        loaded = xe.with_settings(loaded, list(args.settings))
     except ValueError as exc:
-        p.error(str(exc))
+        refuse(prog, str(exc))
     clips = xe.default_clips(loaded.cfg.task, args.splits)
     empty = [s for s in args.splits if not any(c.split == s for c in clips)]
     if empty:
-        p.error(f"--splits {' '.join(empty)}: no clip of {loaded.cfg.name} is in that split")
+        refuse(prog, f"--splits {' '.join(empty)}: no clip of {loaded.cfg.name} is in that split")
     env = xe.make_eval_env(loaded, clips)
     policy = checkpoint.make_policy(loaded, env.obs_dim, env.nu)
     title = loaded.cfg.name + (f" with --set {' '.join(args.settings)}" if args.settings else "")

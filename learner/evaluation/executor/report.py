@@ -23,14 +23,16 @@ Prints one line per split and one overall.
 
 from __future__ import annotations
 
-import argparse
 import json
-import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, ClassVar
 
-from learner.evaluation import cli_args
+import tyro
+
+from common.config_limits import Limit, at_least, check_limits, validated
+from learner.cli_options import parse_options, refuse, value_list
 from learner.evaluation.executor import EXECUTOR_ONLY_OPTIONS
 from learner import checkpoint
 
@@ -43,36 +45,72 @@ ZERO_NOTE = ("**zero actions, not the policy** (`--zero-action`: for PD targets 
 SPLIT_COLOURS = {"train": "#3b75af", "test": "#ef8636", "unused": "#9e9e9e", "imported": "#519e3e"}
 
 
-def parser(prog: str = "morphmimic evaluate") -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=prog, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--checkpoint", required=True, help="checkpoint dir, state.pt or run dir of an executor run")
-    p.add_argument("--clips", nargs="+", type=cli_args.clip_source, default=None, metavar="CLIP",
-                   help="clip ids, clip files or folders of .npz clips (default: every humanoid clip, by split)")
-    p.add_argument("--starts", type=cli_args.positive_int, default=10,
-                   help="start frames per clip, evenly over its first 80%% (deterministic)")
-    p.add_argument("--workers", type=cli_args.positive_int, default=1, help="processes running episodes")
-    p.add_argument("--out", default="", help="output directory (default: <checkpoint dir>/eval_clips)")
-    p.add_argument("--no-render", action="store_true", help="skip the best/worst clip strips")
-    p.add_argument("--gif", action="store_true", help="also write GIFs of the best and worst clip")
-    p.add_argument("--zero-action", action="store_true",
-                   help="act with zero actions instead of the policy (a PD executor: the humanoid's PD on the reference "
-                        "itself; torque: no torque), the baseline that shows what the policy adds; no best/worst strips; default "
-                        "--out <checkpoint dir>/eval_clips_zero_action")
-    p.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE", dest="settings",
-                   help="evaluate with these fields of the checkpoint's executor config changed (the policy is the "
-                        f"same; e.g. ankle_armature=0.1): {', '.join(xe.SETTABLE)}")
-    return p
+PROG = "morphmimic evaluate"
 
 
-def select_clips(p: argparse.ArgumentParser, values: list[str] | None, loaded: checkpoint.Loaded) -> list[xe.EvalClip]:
-    """--clips resolved against the checkpoint's config; an unusable file is a usage error."""
+def clip_source(text: str) -> str:
+    """`text` if it names an executor clip to evaluate: a humanoid clip id, a clip file (.npz, .bvh,
+    DeepMimic .txt/.json) or a folder of `.npz` clips; else `xe.ClipSelectionError` (a ValueError)
+    naming it (`xe.classify_clip_value`)."""
+    xe.classify_clip_value(text)
+    return text
+
+
+Clips = Annotated[tuple[str, ...], value_list(clip_source, "CLIP", nargs="+")]
+"""`--clips A B ...`: clip ids, clip files or folders of .npz clips, each checked as it is parsed."""
+Settings = Annotated[tuple[str, ...], value_list(str, "NAME=VALUE", nargs="+"), tyro.conf.arg(
+    name="set", help="Run with these fields of the checkpoint's executor config changed, the policy the same "
+                     f"(e.g. ankle_armature=0.1): {', '.join(xe.SETTABLE)}.")]
+"""`--set NAME=VALUE ...` (a field named `settings`): the pairs `xe.with_settings` applies."""
+
+
+@validated
+@dataclass(kw_only=True)
+class ClipOptions:
+    """Which episodes an executor evaluation runs: the options `morphmimic evaluate` and
+    `morphmimic ablation` share on executor checkpoints."""
+
+    clips: Clips = ()
+    """Clip ids, clip files or folders of .npz clips (default: every humanoid clip, by split)."""
+    starts: int = 10
+    """Start frames per clip, evenly over its first 80% (deterministic)."""
+    workers: int = 1
+    """Processes running episodes."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {"starts": at_least(1), "workers": at_least(1)}
+    FLAG_PREFIX: ClassVar[str] = ""
+
+    def validate(self) -> None:
+        check_limits(self)
+
+
+@validated
+@dataclass(kw_only=True)
+class ReportOptions(ClipOptions):
+    checkpoint: str
+    """Checkpoint dir, state.pt or run dir of an executor run."""
+    out: str = ""
+    """Output directory (default: <checkpoint dir>/eval_clips)."""
+    render: bool = True
+    """Write the best/worst clip strips."""
+    gif: bool = False
+    """Also write GIFs of the best and worst clip."""
+    zero_action: bool = False
+    """Act with zero actions instead of the policy (a PD executor: the humanoid's PD on the reference
+    itself; torque: no torque), the baseline that shows what the policy adds; no best/worst strips;
+    default --out <checkpoint dir>/eval_clips_zero_action."""
+    settings: Settings = ()
+
+
+def select_clips(prog: str, values: tuple[str, ...], loaded: checkpoint.Loaded) -> list[xe.EvalClip]:
+    """--clips resolved against the checkpoint's config (empty: its default clips); a clip the
+    checkpoint cannot play is a usage error of `prog`."""
     from common.motion.errors import ClipError
 
     try:
-        return xe.resolve_clips(values, loaded.cfg.task) if values else xe.default_clips(loaded.cfg.task)
+        return xe.resolve_clips(list(values), loaded.cfg.task) if values else xe.default_clips(loaded.cfg.task)
     except (xe.ClipSelectionError, ClipError) as exc:
-        p.error(f"argument --clips: {exc}")
-    raise AssertionError("unreachable")
+        refuse(prog, f"--clips: {exc}")
 
 
 def describe(cfg) -> str:
@@ -259,20 +297,19 @@ def line(name: str, group: str, s: dict) -> str:
 
 
 def main(argv: list[str]) -> int:
-    p = parser()
-    args = p.parse_args(argv)
+    args = parse_options(ReportOptions, argv, prog=PROG, description=__doc__)
     loaded = checkpoint.load_trained(args.checkpoint)
     if loaded.cfg.task.name != "executor":
-        p.error(f"--checkpoint {args.checkpoint}: task {loaded.cfg.task.name!r} is not the executor; "
-                f"{', '.join(EXECUTOR_ONLY_OPTIONS)} are executor options")
+        refuse(PROG, f"--checkpoint {args.checkpoint}: task {loaded.cfg.task.name!r} is not the executor; "
+                     f"{', '.join(EXECUTOR_ONLY_OPTIONS)} are executor options")
     try:
-        loaded = xe.with_settings(loaded, args.settings)
+        loaded = xe.with_settings(loaded, list(args.settings))
     except ValueError as exc:
-        p.error(str(exc))
-    clips = select_clips(p, args.clips, loaded)
+        refuse(PROG, str(exc))
+    clips = select_clips(PROG, args.clips, loaded)
     out = Path(args.out) if args.out else loaded.path.parent / ("eval_clips_zero_action" if args.zero_action else "eval_clips")
-    result = evaluate_checkpoint(loaded, clips, args.starts, args.workers, out, render=not args.no_render, gif=args.gif,
-                                 zero_action=args.zero_action, settings=args.settings)
+    result = evaluate_checkpoint(loaded, clips, args.starts, args.workers, out, render=args.render, gif=args.gif,
+                                 zero_action=args.zero_action, settings=list(args.settings))
     s = result["summary"]
     name = f"{loaded.name} (zero action)" if args.zero_action else loaded.name
     for group, stats in s["splits"].items():
@@ -280,6 +317,3 @@ def main(argv: list[str]) -> int:
     print(line(name, "all", s["overall"]) + f"; wrote {out}")
     return 0
 
-
-if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))

@@ -39,22 +39,23 @@ paper's figures as a second line). Prints one line per row.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import math
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, ClassVar
 
 import numpy as np
 
-from learner.evaluation import cli_args, harness
+from common.config_limits import SEED, Limit, above, at_least, check_limits, validated
+from learner.cli_options import parse_options, refuse
+from learner.evaluation import harness
 from learner.evaluation.shape import episodes
 from learner import checkpoint
 
 from learner.evaluation.executor import evaluate as xe
+from learner.evaluation.executor.report import Clips, Settings
 from common.characters.mass import scale_body_mass, set_body_mass
 from common.tasks.executor.env import PROJECTILES
 
@@ -107,12 +108,54 @@ def rows_for(groups: tuple[str, ...], projectile_speed: float = PROJECTILE_SPEED
 
 
 def row_groups(text: str) -> tuple[str, ...]:
-    """argparse type: a comma-separated subset of speed, projectile, mass."""
+    """`--rows`: a comma-separated subset of speed, projectile, mass, in that order; ValueError
+    naming `text` otherwise."""
     parts = tuple(p.strip() for p in text.split(",") if p.strip())
     bad = [p for p in parts if p not in GROUPS]
     if not parts or bad:
-        raise argparse.ArgumentTypeError(f"{text!r} must be a comma-separated list of {', '.join(GROUPS)}")
+        raise ValueError(f"{text!r} must be a comma-separated list of {', '.join(GROUPS)}")
     return tuple(g for g in GROUPS if g in parts)
+
+
+PROG = "morphmimic robustness"
+EXECUTOR_ONLY = ("clips", "starts", "projectile_speed", "projectile_distance", "settings")
+SHAPE_ONLY = ("shapes", "episode_s", "seed")
+
+
+@validated
+@dataclass(kw_only=True)
+class RobustnessOptions:
+    checkpoint: str
+    """Checkpoint dir, state.pt, run dir or learner/pretrained/<name>."""
+    rows: Annotated[tuple[str, ...], harness.one_value(row_groups, "speed,projectile,mass", ",".join)] = GROUPS
+    """Groups of rows."""
+    clips: Clips = ()
+    """Executor: clip ids, files or folders of .npz clips (default: the clips it trained on)."""
+    starts: int = 3
+    """Executor: start frames per clip."""
+    projectile_speed: float = PROJECTILE_SPEED_MPS
+    """Executor: launch speed of the projectile, m/s."""
+    projectile_distance: float = PROJECTILE_DISTANCE_M
+    """Executor: horizontal distance from the root the projectile is launched from, m."""
+    shapes: int = 20
+    """Shape controllers: random shapes."""
+    episode_s: float = 10.0
+    """Shape controllers: episode length, s."""
+    seed: int = 2019
+    """Shape controllers: seed of the shape draws."""
+    workers: int = 1
+    """Processes running episodes."""
+    settings: Settings = ()
+    out: str = ""
+    """Output directory (default: <checkpoint dir>/robustness)."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {"starts": at_least(1), "projectile_speed": above(0),
+                                          "projectile_distance": above(0), "shapes": at_least(1),
+                                          "episode_s": above(0), "seed": SEED, "workers": at_least(1)}
+    FLAG_PREFIX: ClassVar[str] = ""
+
+    def validate(self) -> None:
+        check_limits(self)
 
 
 def relative(perf: float | None, base: float | None) -> float | None:
@@ -316,41 +359,19 @@ def _line(res: dict, base: dict) -> str:
 def main(argv: list[str]) -> int:
     from learner.evaluation.executor import robustness_report
 
-    p = argparse.ArgumentParser(prog="morphmimic robustness", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--checkpoint", required=True, help="checkpoint dir, state.pt, run dir or learner/pretrained/<name>")
-    p.add_argument("--rows", type=row_groups, default=GROUPS, help="groups of rows: speed,projectile,mass (default: all)")
-    p.add_argument("--clips", nargs="+", type=cli_args.clip_source, default=None, metavar="CLIP",
-                   help="executor: clip ids, files or folders of .npz clips (default: the clips it trained on)")
-    p.add_argument("--starts", type=cli_args.positive_int, default=3, help="executor: start frames per clip")
-    p.add_argument("--projectile-speed", type=cli_args.positive_float, default=PROJECTILE_SPEED_MPS,
-                   help="executor: launch speed of the projectile, m/s")
-    p.add_argument("--projectile-distance", type=cli_args.positive_float, default=PROJECTILE_DISTANCE_M,
-                   help="executor: horizontal distance from the root the projectile is launched from, m")
-    p.add_argument("--shapes", type=cli_args.positive_int, default=20, help="shape controllers: random shapes")
-    p.add_argument("--episode-s", type=cli_args.positive_float, default=10.0, help="shape controllers: episode length, s")
-    p.add_argument("--seed", type=cli_args.seed, default=2019, help="shape controllers: seed of the shape draws")
-    p.add_argument("--workers", type=cli_args.positive_int, default=1, help="processes running episodes")
-    p.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE", dest="settings",
-                   help=f"executor: these config fields changed, the policy the same (as `morphmimic evaluate --set`): "
-                        f"{', '.join(xe.SETTABLE)}")
-    p.add_argument("--out", default="", help="output directory (default: <checkpoint dir>/robustness)")
-    args = p.parse_args(argv)
+    args = parse_options(RobustnessOptions, argv, prog=PROG, description=__doc__)
     loaded = checkpoint.load_trained(args.checkpoint)
     executor = loaded.cfg.task.name == "executor"
-    defaults = vars(p.parse_args(["--checkpoint", args.checkpoint]))
-    wrong = (("shapes", "episode_s", "seed") if executor else ("clips", "starts", "projectile_speed", "projectile_distance",
-                                                                "settings"))
-    given = [f"--{'set' if k == 'settings' else k.replace('_', '-')}" for k in wrong if getattr(args, k) != defaults[k]]
+    given = harness.changed_flags(args, SHAPE_ONLY if executor else EXECUTOR_ONLY, {"settings": "--set"})
     if given:
-        p.error(f"{', '.join(given)}: not options for task {loaded.cfg.task.name!r} "
-                f"({'executor' if executor else 'shape controller'} checkpoints take "
-                f"{'--clips, --starts, --projectile-speed, --projectile-distance, --set' if executor else '--shapes, --episode-s, --seed'})")
+        refuse(PROG, f"{', '.join(given)}: not options for task {loaded.cfg.task.name!r} "
+                     f"({'executor' if executor else 'shape controller'} checkpoints take "
+                     f"{'--clips, --starts, --projectile-speed, --projectile-distance, --set' if executor else '--shapes, --episode-s, --seed'})")
     if executor:
         try:
-            loaded = xe.with_settings(loaded, args.settings)
+            loaded = xe.with_settings(loaded, list(args.settings))
         except ValueError as exc:
-            p.error(str(exc))
+            refuse(PROG, str(exc))
     rows = rows_for(args.rows, args.projectile_speed, args.projectile_distance)
     out = Path(args.out) if args.out else loaded.path.parent / "robustness"
     out.mkdir(parents=True, exist_ok=True)
@@ -358,11 +379,11 @@ def main(argv: list[str]) -> int:
     if executor:
         from learner.evaluation.executor.report import select_clips
 
-        clips = select_clips(p, args.clips, loaded) if args.clips else xe.default_clips(loaded.cfg.task, ("train",))
+        clips = select_clips(PROG, args.clips, loaded) if args.clips else xe.default_clips(loaded.cfg.task, ("train",))
         if not clips:
-            p.error(f"--checkpoint {args.checkpoint}: it trained on no humanoid clip; name --clips")
+            refuse(PROG, f"--checkpoint {args.checkpoint}: it trained on no humanoid clip; name --clips")
         base, results = executor_rows(loaded, clips, args.starts, args.workers, rows)
-        protocol = {"clips": [c.clip_id for c in clips], "starts": args.starts, "settings": args.settings, "projectile": {
+        protocol = {"clips": [c.clip_id for c in clips], "starts": args.starts, "settings": list(args.settings), "projectile": {
             **robustness_report.projectile_spec(), "speed_mps": args.projectile_speed, "distance_m": args.projectile_distance}}
     else:
         base, results = shape_rows(loaded, args.shapes, args.episode_s, args.seed, args.workers, rows)
@@ -371,6 +392,3 @@ def main(argv: list[str]) -> int:
     print(f"[robustness] {loaded.name}: wrote {', '.join(Path(f).name for f in files)} to {out}")
     return 0
 
-
-if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))

@@ -23,13 +23,24 @@ Prints a markdown table; `--out` also writes `velocity_probe.md` and `.json`.
 from __future__ import annotations
 
 import math
-import sys
 from collections import defaultdict
-from typing import Any
+from dataclasses import dataclass
+from typing import Annotated, Any
 
 import numpy as np
 
+from common.config_limits import validated
+from learner.cli_options import parse_options, refuse, value_list
 from learner.evaluation.executor import probe_cli
+
+PROG = "morphmimic velocity-probe"
+
+
+@validated
+@dataclass(kw_only=True)
+class VelocityProbeOptions(probe_cli.ProbeOptions):
+    leave_out: Annotated[tuple[str, ...], value_list(str, "JOINT", nargs="+")] = ("ankle",)
+    """Joints (by part of their name) left out of the velocity term for the third column."""
 
 
 def joint_of_dof(model) -> list[str]:
@@ -141,26 +152,20 @@ def report(name: str, left_out: list[str], threshold: float, rows: dict[str, dic
 
 
 def main(argv: list[str]) -> int:
-    p = probe_cli.parser("morphmimic velocity-probe", __doc__)
-    p.add_argument("--leave-out", nargs="+", default=["ankle"], metavar="JOINT",
-                   help="joints (by part of their name) left out of the velocity term for the third column")
-    args = p.parse_args(argv)
-    opened = probe_cli.open_checkpoint(p, args)
+    args = parse_options(VelocityProbeOptions, argv, prog=PROG, description=__doc__)
+    opened = probe_cli.open_checkpoint(PROG, args)
     if opened.loaded.cfg.task.executor.joint_velocity != "instant":
-        p.error("joint_velocity = step_mean: the probe reads the simulator's instant joint velocities, "
-                "which that term does not compare; probe with --set joint_velocity=instant")
+        refuse(PROG, "joint_velocity = step_mean: the probe reads the simulator's instant joint velocities, "
+                     "which that term does not compare; probe with --set joint_velocity=instant")
     joints = joint_of_dof(opened.env.ref_model)
     try:
-        mask = left_out_mask(joints, args.leave_out)
+        mask = left_out_mask(joints, list(args.leave_out))
     except ValueError as exc:
-        p.error(str(exc))
+        refuse(PROG, str(exc))
     rows = {split: probe_split(opened, split, args.starts, mask, joints) for split in args.splits}
     ex = opened.loaded.cfg.task.executor
-    text = report(opened.title, args.leave_out, -math.log(ex.alpha) / ex.reward_scales[4], rows)
-    probe_cli.write(args.out, "velocity_probe", text, {"leave_out": args.leave_out, "settings": args.settings, "splits": rows})
+    text = report(opened.title, list(args.leave_out), -math.log(ex.alpha) / ex.reward_scales[4], rows)
+    probe_cli.write(args.out, "velocity_probe", text,
+                    {"leave_out": list(args.leave_out), "settings": list(args.settings), "splits": rows})
     print(text)
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))

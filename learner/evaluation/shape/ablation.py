@@ -28,17 +28,38 @@ made instead (`learner/evaluation/executor/ablation.py`).
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
-import sys
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated, ClassVar
 
 import numpy as np
 
-from learner.evaluation import cli_args, harness
+from common.config_limits import Limit, at_least, check_limits, validated
+from learner.cli_options import parse_options, refuse, value_list
+from learner.evaluation import harness
 from learner.evaluation.shape import episodes
+from learner.evaluation.shape.evaluate import ShapeProtocol
 from learner import checkpoint
+
+PROG = "morphmimic ablation"
+
+
+@validated
+@dataclass(kw_only=True)
+class AblationOptions(ShapeProtocol):
+    checkpoints: Annotated[tuple[str, ...], value_list(str, "CHECKPOINT", nargs="+")]
+    """Checkpoints or run directories to compare."""
+    out: str = "ablation"
+    """Output directory."""
+    last: int = 1
+    """Take each run directory's newest N checkpoints as one arm, judged on their means."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {**ShapeProtocol.LIMITS, "last": at_least(1)}
+
+    def validate(self) -> None:
+        check_limits(self)
 
 
 def describe(cfg) -> str:
@@ -53,7 +74,7 @@ def describe(cfg) -> str:
     return ", ".join(parts)
 
 
-def _still_valid(res_file: Path, loaded: checkpoint.Loaded, args: argparse.Namespace) -> bool:
+def _still_valid(res_file: Path, loaded: checkpoint.Loaded, args: AblationOptions) -> bool:
     """Whether an earlier results.json measured this checkpoint by this protocol on the body this
     tree builds; a file that is not such a results.json is measured again, not trusted."""
     from common.tasks.shape.env import character_preset
@@ -72,7 +93,7 @@ def _still_valid(res_file: Path, loaded: checkpoint.Loaded, args: argparse.Names
         return False
 
 
-def evaluate_one(ckpt: str, out: Path, args: argparse.Namespace, folder: str = "") -> dict:
+def evaluate_one(ckpt: str, out: Path, args: AblationOptions, folder: str = "") -> dict:
     """Evaluate one checkpoint into `<out>/<folder>` (default: its run name)."""
     loaded = checkpoint.load_trained(ckpt)
     target = out / (folder or loaded.name)
@@ -272,23 +293,10 @@ def effects(rows: list[dict]) -> list[str]:
 
 
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog="morphmimic ablation", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--checkpoints", nargs="+", required=True, help="checkpoints or run directories to compare")
-    p.add_argument("--out", default="ablation", help="output directory")
-    p.add_argument("--shapes", type=cli_args.positive_int, default=300)
-    p.add_argument("--seed", type=cli_args.seed, default=2019)
-    p.add_argument("--episode-s", type=cli_args.positive_float, default=30.0)
-    p.add_argument("--workers", type=cli_args.positive_int, default=1)
-    p.add_argument("--map-params", nargs=2, default=None, metavar=("X", "Y"))
-    p.add_argument("--fall-rule", choices=("task", "paper"), default="task",
-                   help="what ends an episode (as in morphmimic evaluate); both fall-down rates are in the table either way")
-    p.add_argument("--last", type=cli_args.positive_int, default=1,
-                   help="take each run directory's newest N checkpoints as one arm, judged on their means (default 1)")
-    args = p.parse_args(argv)
+    args = parse_options(AblationOptions, argv, prog=PROG, description=__doc__)
     executors = [c for c in args.checkpoints if checkpoint.load_trained(c).cfg.task.name == "executor"]
     if executors:
-        p.error(f"--checkpoints {' '.join(executors)}: executor checkpoints; compare them with executor checkpoints only")
+        refuse(PROG, f"--checkpoints {' '.join(executors)}: executor checkpoints; compare them with executor checkpoints only")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     arms = arms_of(args.checkpoints, args.last)
@@ -320,6 +328,3 @@ def main(argv: list[str]) -> int:
                                          for r in rows])
     return 0
 
-
-if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))

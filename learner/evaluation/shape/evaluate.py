@@ -18,54 +18,98 @@ a motion executor's is evaluated per clip by `learner/evaluation/executor/report
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
-import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated, ClassVar, Literal
 
 import numpy as np
 
 from common.motion.root_height import ROOT_HEIGHT_RULES
-from learner.evaluation import cli_args, harness
+from common.config_limits import FINITE, SEED, Limit, above, at_least, between, check_limits, validated
+from learner.cli_options import parse_options, refuse, value_list
+from learner.evaluation import harness
 from learner.evaluation.executor import EXECUTOR_ONLY_OPTIONS
 from learner.evaluation.registry import first_value
 from learner.evaluation.shape import episodes
 from learner import checkpoint
 from learner.evaluation.shape import plots as eval_plots
-from learner.evaluation.shape import swim_metrics
+from learner.evaluation.shape import morph_demo, swim_metrics
 
 
-def parse(argv: list[str]) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="morphmimic evaluate", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--checkpoint", required=True, help="checkpoint dir, state.pt, run dir or learner/pretrained/<name>")
-    p.add_argument("--shapes", type=cli_args.positive_int, default=300, help="random shapes (paper: 300)")
-    p.add_argument("--seed", type=cli_args.seed, default=2019, help="seed of the shape draws (fixed: every checkpoint sees the same shapes)")
-    p.add_argument("--episode-s", type=cli_args.positive_float, default=30.0, help="episode length in simulated seconds (paper: 30)")
-    p.add_argument("--workers", type=cli_args.positive_int, default=1, help="processes running episodes")
-    p.add_argument("--box-scale", type=cli_args.box_scale, default=1.0,
-                   help="draw the shapes from the box shrunk toward the base shape by this factor, as "
-                        "--task.body.shape-box-scale does in training (a curriculum's progress); 1: the paper's protocol")
-    p.add_argument("--fall-rule", choices=("task", "paper"), default="task",
-                   help="what ends an episode: the task's own rule (checkpoints trained with --task.imitate.no-shin-contact-is-fall, as the quadruped's before 2026-12-04, let the shins touch) or "
-                        "Won & Lee's (any body but the feet); both fall-down rates are reported either way")
-    p.add_argument("--root-height", choices=ROOT_HEIGHT_RULES, default=None,
-                   help="retarget the reference with this root-height rule instead of the checkpoint's "
-                        "(`morphmimic references` compares them)")
-    p.add_argument("--clearance", type=cli_args.clearance, default=None,
-                   help="retarget with this body clearance (m) instead of the checkpoint's")
-    p.add_argument("--out", default="", help="output directory (default: <checkpoint dir>/eval)")
-    p.add_argument("--map-params", nargs=2, default=None, metavar=("X", "Y"),
-                   help="two shape parameters of the maps (default: the run's sampler.plot_params)")
-    p.add_argument("--bins", type=cli_args.positive_int, default=6, help="cells per axis of the return map")
-    p.add_argument("--no-render", action="store_true", help="skip the best/worst strips")
-    p.add_argument("--gif", action="store_true", help="also write GIFs of the best and worst shapes")
-    p.add_argument("--morph", action="store_true", help="run the morph demo (learner.evaluation.shape.morph_demo) instead")
-    p.add_argument("--strength", type=cli_args.finite_float, default=None,
-                   help="with --morph: scale of the morph's deviation from the base shape (morph_demo's default: 1)")
-    return p.parse_args(argv)
+PROG = "morphmimic evaluate"
+RootHeightRule = Literal[ROOT_HEIGHT_RULES]
+FallRule = Literal["task", "paper"]
+
+
+@validated
+@dataclass(kw_only=True)
+class ShapeProtocol:
+    """How the shapes are drawn and run: the options `morphmimic evaluate` and `morphmimic
+    ablation` share on shape controllers."""
+
+    shapes: int = 300
+    """Random shapes (paper: 300)."""
+    seed: int = 2019
+    """Seed of the shape draws (fixed: every checkpoint sees the same shapes)."""
+    episode_s: float = 30.0
+    """Episode length in simulated seconds (paper: 30)."""
+    workers: int = 1
+    """Processes running episodes."""
+    fall_rule: FallRule = "task"
+    """What ends an episode: the task's own rule (a checkpoint trained with
+    --task.imitate.no-shin-contact-is-fall lets the shins touch) or Won & Lee's (any body but the
+    feet); both fall-down rates are reported either way."""
+    map_params: Annotated[tuple[str, ...], value_list(str, "X Y", nargs=2)] = ()
+    """Two shape parameters of the return map (default: the run's sampler.plot_params)."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {"shapes": at_least(1), "seed": SEED, "episode_s": above(0),
+                                          "workers": at_least(1)}
+    FLAG_PREFIX: ClassVar[str] = ""
+
+    def validate(self) -> None:
+        check_limits(self)
+
+
+@validated
+@dataclass(kw_only=True)
+class EvaluateOptions(ShapeProtocol):
+    checkpoint: str
+    """Checkpoint dir, state.pt, run dir or learner/pretrained/<name>."""
+    box_scale: float = 1.0
+    """Draw the shapes from the box shrunk toward the base shape by this factor, as
+    --task.body.shape-box-scale does in training (a curriculum's progress); 1: the paper's protocol."""
+    root_height: RootHeightRule | None = None
+    """Retarget the reference with this root-height rule instead of the checkpoint's (`morphmimic
+    references` compares them)."""
+    clearance: float | None = None
+    """Retarget with this body clearance (m) instead of the checkpoint's."""
+    out: str = ""
+    """Output directory (default: <checkpoint dir>/eval)."""
+    bins: int = 6
+    """Cells per axis of the return map."""
+    render: bool = True
+    """Write the best/worst strips."""
+    gif: bool = False
+    """Also write GIFs of the best and worst shapes (with --morph: morph.gif)."""
+    morph: bool = False
+    """Run the morph demo (learner.evaluation.shape.morph_demo) instead."""
+    strength: float | None = None
+    """With --morph: scale of the morph's deviation from the base shape (default 1)."""
+    schedule: morph_demo.Schedule = ()
+    """With --morph: JSON keyframes, e.g. '[[0, {}], [3, {"global_z": 1.3}], [6, {}]]' (default: the
+    parameterization's)."""
+    every: int | None = None
+    """With --morph: rebuild the body every this many control steps (default 1)."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {**ShapeProtocol.LIMITS, "box_scale": between(0, 1, lo_open=True),
+                                          "clearance": between(0, 0.1), "bins": at_least(1), "strength": FINITE,
+                                          "every": at_least(1)}
+
+    def validate(self) -> None:
+        check_limits(self)
 
 
 def render_episode(loaded: checkpoint.Loaded, params: np.ndarray, seed: int, episode_s: float, out: Path, stem: str,
@@ -88,7 +132,7 @@ def render_episode(loaded: checkpoint.Loaded, params: np.ndarray, seed: int, epi
     return [str(p) for p in written if p is not None]
 
 
-def markdown(name: str, summary: dict, args: argparse.Namespace, files: list[str], loaded: checkpoint.Loaded) -> str:
+def markdown(name: str, summary: dict, args: EvaluateOptions, files: list[str], loaded: checkpoint.Loaded) -> str:
     s = summary
     lines = [
         f"# Evaluation of `{name}`", "",
@@ -173,31 +217,33 @@ def swim_line(s: dict) -> str:
             f"{s.get('swim_heading_error_deg', float('nan')):.1f} deg, upright {s['swim_upright_pct']:.1f}%")
 
 
-# Evaluation options that the morph demo does not take: refused with --morph rather than ignored.
-_NOT_MORPH = ("shapes", "seed", "episode_s", "workers", "box_scale", "map_params", "bins", "no_render", "root_height", "clearance")
+NOT_MORPH = ("shapes", "seed", "episode_s", "workers", "box_scale", "map_params", "bins", "render", "root_height",
+             "clearance")
+"""Evaluation options the morph demo does not take: refused with --morph rather than ignored."""
+MORPH_ONLY = ("strength", "schedule", "every")
+"""Morph demo options: refused without --morph."""
 
 
 def main(argv: list[str]) -> int:
     if any(a.split("=", 1)[0] in EXECUTOR_ONLY_OPTIONS for a in argv):  # named for what they are, not "unrecognized"
         path = first_value(argv, "--checkpoint")
         task = checkpoint.load_trained(path).cfg.task.name if path is not None else "?"
-        print(f"morphmimic evaluate: --checkpoint {path}: task {task!r} is not the executor; "
-              f"{', '.join(EXECUTOR_ONLY_OPTIONS)} are executor options", file=sys.stderr)
-        raise SystemExit(2)
-    args = parse(argv)
+        refuse(PROG, f"--checkpoint {path}: task {task!r} is not the executor; "
+                     f"{', '.join(EXECUTOR_ONLY_OPTIONS)} are executor options")
+    args = parse_options(EvaluateOptions, argv, prog=PROG, description=__doc__)
     if args.morph:
-        from learner.evaluation.shape import morph_demo
-
-        defaults = vars(parse(["--checkpoint", args.checkpoint]))
-        ignored = [f"--{k.replace('_', '-')}" for k in _NOT_MORPH if getattr(args, k) != defaults[k]]
+        ignored = harness.changed_flags(args, NOT_MORPH, {"render": "--no-render"})
         if ignored:
-            raise SystemExit(f"{', '.join(ignored)}: not options of the morph demo (--morph takes --out, --strength, --gif)")
-
-        return morph_demo.main(["--checkpoint", args.checkpoint] + (["--out", args.out] if args.out else [])
-                               + ([] if args.strength is None else ["--strength", str(args.strength)])
-                               + (["--gif"] if args.gif else []))
+            raise SystemExit(f"{', '.join(ignored)}: not options of the morph demo "
+                             "(--morph takes --out, --strength, --schedule, --every, --gif)")
+        return morph_demo.run(morph_demo.MorphOptions(
+            checkpoint=args.checkpoint, out=args.out, schedule=args.schedule, gif=args.gif,
+            strength=1.0 if args.strength is None else args.strength, every=args.every or 1))
+    morph_only = harness.changed_flags(args, MORPH_ONLY)
     if args.strength is not None:
         raise SystemExit(f"--strength {args.strength} is a morph demo option: use it with --morph")
+    if morph_only:
+        raise SystemExit(f"{', '.join(morph_only)}: morph demo options: use them with --morph")
     loaded = checkpoint.load_trained(args.checkpoint)
     from common.tasks.registry import make_env, task_space
 
@@ -213,7 +259,7 @@ def main(argv: list[str]) -> int:
     n_shape = getattr(env, "n_shape", space.dim)
     out = Path(args.out) if args.out else loaded.path.parent / "eval"
     out.mkdir(parents=True, exist_ok=True)
-    names = args.map_params or list(loaded.cfg.sampler.plot_params) or list(space.names[:2])
+    names = list(args.map_params) or list(loaded.cfg.sampler.plot_params) or list(space.names[:2])
     eval_plots.axes_of(space, names)  # a bad --map-params fails now, not after hours of episodes
     shapes = episodes.eval_shapes(space, args.shapes, args.seed)
     t0 = time.monotonic()
@@ -268,7 +314,7 @@ def main(argv: list[str]) -> int:
     vm_png = eval_plots.plot_vm_map(sampler_state, train_space, names, out / "map_vm.png") if sampler_state else None
     if vm_png:
         files.append(str(vm_png))
-    if not args.no_render:
+    if args.render:
         order = sorted(results, key=lambda r: r["return"])
         for stem, r in (("best", order[-1]), ("worst", order[0])):
             files += render_episode(loaded, np.array(r["params"]), args.seed + r["index"], args.episode_s, out, stem, args.gif,
@@ -283,6 +329,3 @@ def main(argv: list[str]) -> int:
           f"return-map min/mean {summary['return_map_uniformity']:.2f}{swim_line(summary)}; wrote {out}")
     return 0
 
-
-if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))

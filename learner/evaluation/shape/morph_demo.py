@@ -2,7 +2,7 @@
 changes shape while the trained controller runs, and the episode is recorded.
 
     morphmimic evaluate --checkpoint learner/pretrained/lower_biped --morph
-    python -m learner.evaluation.shape.morph_demo --checkpoint learner/pretrained/lower_biped --strength 0.5 --gif
+    morphmimic evaluate --checkpoint learner/pretrained/lower_biped --morph --strength 0.5 --gif
 
 The schedule is a list of keyframes `(time_s, {shape parameter: value})`, linearly
 interpolated (parameters not named stay at the base shape's value, 1.0); the body is rebuilt every
@@ -15,13 +15,17 @@ reference retargeted). Defaults per parameterization follow Figure 1: tall, then
 
 from __future__ import annotations
 
-import argparse
 import json
+import math
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated, ClassVar
 
 import numpy as np
 
-from learner.evaluation import cli_args, harness
+from common.config_limits import FINITE, Limit, at_least, check_limits, validated
+from learner.cli_options import parse_options
+from learner.evaluation import harness
 from learner.evaluation.shape import episodes
 from learner import checkpoint
 
@@ -90,19 +94,70 @@ def run_morph(loaded: checkpoint.Loaded, schedule=None, strength: float = 1.0, e
             "return": result["return"], "strength": strength, "schedule": schedule}
 
 
+def morph_schedule(text: str) -> tuple[tuple[float, dict[str, float]], ...]:
+    """JSON keyframes `[[time_s, {parameter: value}], ...]` with times >= 0 and strictly
+    increasing (the morph interpolates between them) and finite values; ValueError naming the
+    value otherwise. Parameter names are checked against the checkpoint's shape space when the
+    schedule is used (`shape_at`)."""
+    allowed = 'JSON keyframes [[time_s, {"parameter": value}], ...] with times >= 0 strictly increasing'
+    try:
+        raw = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{text!r} is not JSON ({exc.msg}); it must be {allowed}") from None
+    if not isinstance(raw, list) or not raw:
+        raise ValueError(f"{text!r} must be a non-empty list of {allowed}")
+    keys: list[tuple[float, dict[str, float]]] = []
+    for k in raw:
+        ok = isinstance(k, list) and len(k) == 2 and isinstance(k[1], dict)
+        t = k[0] if ok else None
+        if not ok or isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t) or t < 0:
+            raise ValueError(f"keyframe {json.dumps(k)} in {text!r}: each must be [time_s >= 0, {{...}}]")
+        for name, v in k[1].items():
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ValueError(f"keyframe {json.dumps(k)}: {name} = {v!r} must be a finite number")
+        if keys and t <= keys[-1][0]:
+            raise ValueError(f"keyframe times {[kk[0] for kk in keys] + [t]} must be strictly increasing")
+        keys.append((float(t), {str(n): float(v) for n, v in k[1].items()}))
+    return tuple(keys)
+
+
+Schedule = Annotated[tuple, harness.one_value(morph_schedule, "JSON", lambda keys: json.dumps(keys) if keys else "")]
+"""`--schedule '[[0, {}], [3, {"global_z": 1.3}], [6, {}]]'`: keyframes (empty: the default schedule)."""
+
+
+@validated
+@dataclass(kw_only=True)
+class MorphOptions:
+    """The morph demo's options (`morphmimic evaluate --morph` passes them on)."""
+
+    checkpoint: str
+    """Checkpoint dir, state.pt, run dir or learner/pretrained/<name>."""
+    out: str = ""
+    """Output directory (default: <checkpoint dir>/morph)."""
+    schedule: Schedule = ()
+    """JSON keyframes, e.g. '[[0, {}], [3, {"global_z": 1.3}], [6, {}]]' (default: the parameterization's)."""
+    strength: float = 1.0
+    """Scale of every keyframe's deviation from the base shape."""
+    every: int = 1
+    """Rebuild the body every this many control steps."""
+    gif: bool = False
+    """Also write morph.gif."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {"strength": FINITE, "every": at_least(1)}
+    FLAG_PREFIX: ClassVar[str] = ""
+
+    def validate(self) -> None:
+        check_limits(self)
+
+
 def main(argv: list[str]) -> int:
-    p = argparse.ArgumentParser(prog="python -m learner.evaluation.shape.morph_demo", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--checkpoint", required=True)
-    p.add_argument("--out", default="", help="output directory (default: <checkpoint dir>/morph)")
-    p.add_argument("--schedule", type=cli_args.morph_schedule, default=None,
-                   help='JSON keyframes, e.g. \'[[0, {}], [3, {"global_z": 1.3}], [6, {}]]\'')
-    p.add_argument("--strength", type=cli_args.finite_float, default=1.0, help="scale of every keyframe's deviation from the base shape")
-    p.add_argument("--every", type=cli_args.positive_int, default=1, help="rebuild the body every this many control steps")
-    p.add_argument("--gif", action="store_true", help="also write morph.gif")
-    args = p.parse_args(argv)
+    return run(parse_options(MorphOptions, argv, prog="morphmimic evaluate --morph", description=__doc__))
+
+
+def run(args: MorphOptions) -> int:
+    """Run the morph demo and write its files (see the module docstring)."""
     loaded = checkpoint.load_trained(args.checkpoint)
-    schedule = args.schedule
+    schedule = list(args.schedule) or None
     out = Path(args.out) if args.out else loaded.path.parent / "morph"
     rec = eval_plots.Recorder(every=3 if args.gif else 15)
     result = run_morph(loaded, schedule, args.strength, args.every, recorder=rec)
@@ -116,9 +171,3 @@ def main(argv: list[str]) -> int:
     print(f"[morph] {loaded.name}: {result['morphs']} shape changes, {state}; wrote "
           + ", ".join(str(f) for f in files if f) + f", {out / 'morph.json'}")
     return 0
-
-
-if __name__ == "__main__":
-    import sys
-
-    raise SystemExit(main(sys.argv[1:]))

@@ -20,15 +20,48 @@ Writes `references.md` and `references.json` into `--out` and prints the table.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
-import sys
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated, ClassVar, Literal
 
 import numpy as np
 
-from learner.evaluation import cli_args
+from common.config_limits import SEED, Limit, at_least, between, check_limits, validated
+from common.motion.root_height import ROOT_HEIGHT_RULES
+from learner.cli_options import parse_options, value_list
+from learner.presets import PRESETS
+
+WALKER_TASKS = ("lower_biped", "quadruped", "biped")
+Walker = Literal[tuple(name for name, (_, cfg) in PRESETS.items() if cfg.task.name in WALKER_TASKS and "-" not in name)]
+"""The walking shape tasks' base presets (not their variants)."""
+RootHeightRule = Literal[ROOT_HEIGHT_RULES]
+
+
+@validated
+@dataclass
+class ReferencesOptions:
+    preset: Walker = "lower_biped"
+    """A walking shape task."""
+    shapes: int = 300
+    """Random shapes (the evaluation's 300)."""
+    seed: int = 2019
+    """Seed of the shape draws (the evaluation's)."""
+    rules: tuple[RootHeightRule, ...] = ROOT_HEIGHT_RULES
+    """Root-height rules to compare."""
+    clearances: Annotated[tuple[float, ...], value_list(float, "METRES", nargs="+")] = (0.0, 0.01)
+    """Body clearances (m) to compare, each with every rule."""
+    out: str = ""
+    """Output directory (default: none, print only)."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {"shapes": at_least(1), "seed": SEED, "clearances": between(0, 0.1)}
+    FLAG_PREFIX: ClassVar[str] = ""
+
+    def validate(self) -> None:
+        if not self.rules:
+            raise ValueError(f"--rules: give one or more of {', '.join(ROOT_HEIGHT_RULES)}")
+        check_limits(self)
 
 
 def survey(preset: str, rule: str, clearance_m: float, shapes: np.ndarray) -> dict[str, float]:
@@ -37,7 +70,6 @@ def survey(preset: str, rule: str, clearance_m: float, shapes: np.ndarray) -> di
     from common.motion.root_height import foot_heights
     from common.tasks.shape import references
     from common.tasks.registry import make_env
-    from learner.presets import PRESETS
 
     task = PRESETS[preset][1].task
     retarget = dataclasses.replace(task.imitate.retarget, root_height=rule, body_clearance_m=clearance_m)
@@ -76,24 +108,10 @@ def table(rows: list[dict]) -> str:
 
 
 def main(argv: list[str]) -> int:
-    from common.motion.root_height import ROOT_HEIGHT_RULES
     from common.tasks.registry import make_env
     from learner.evaluation.shape import episodes
-    from learner.presets import PRESETS
 
-    p = argparse.ArgumentParser(prog="morphmimic references", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    walkers = [name for name, (_, cfg) in PRESETS.items() if cfg.task.name in ("lower_biped", "quadruped", "biped")
-               and "-" not in name]
-    p.add_argument("--preset", choices=walkers, default="lower_biped", help="a walking shape task")
-    p.add_argument("--shapes", type=cli_args.positive_int, default=300, help="random shapes (the evaluation's 300)")
-    p.add_argument("--seed", type=cli_args.seed, default=2019, help="seed of the shape draws (the evaluation's)")
-    p.add_argument("--rules", nargs="+", choices=ROOT_HEIGHT_RULES, default=list(ROOT_HEIGHT_RULES),
-                   help="root-height rules to compare (default: all)")
-    p.add_argument("--clearances", nargs="+", type=cli_args.clearance, default=[0.0, 0.01],
-                   help="body clearances (m) to compare, each with every rule (default: 0 0.01)")
-    p.add_argument("--out", default="", help="output directory (default: none, print only)")
-    args = p.parse_args(argv)
+    args = parse_options(ReferencesOptions, argv, prog="morphmimic references", description=__doc__)
     env = make_env(PRESETS[args.preset][1].task, seed=0)
     shapes = episodes.eval_shapes(env.space, args.shapes, args.seed)
     rows = []
@@ -111,6 +129,3 @@ def main(argv: list[str]) -> int:
     print(text)
     return 0
 
-
-if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))

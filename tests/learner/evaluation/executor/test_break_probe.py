@@ -73,7 +73,7 @@ def test_a_bad_setting_and_a_bad_count_are_usage_errors(run_dir: Path, capsys) -
     from learner.evaluation.executor import break_probe
 
     for argv, words in ((["--set", "ankle_armature=-1"], "--task.executor.ankle-armature = -1 is not allowed"),
-                        (["--starts", "0"], "'0' must be an integer >= 1")):
+                        (["--starts", "0"], "--starts = 0 is not allowed: give an integer >= 1")):
         with pytest.raises(SystemExit) as exc:
             break_probe.main(["--checkpoint", str(run_dir), *argv])
         assert exc.value.code == 2 and words in capsys.readouterr().err

@@ -159,10 +159,10 @@ def test_executor_options_on_a_shape_checkpoint_are_a_usage_error_naming_them(op
 
 
 @pytest.mark.parametrize("bad, says", [
-    (["--clips", "humanoid3d_nope"], "argument --clips: 'humanoid3d_nope' is no humanoid clip id"),
-    (["--clips", "no/such/file.npz"], "argument --clips: file 'no/such/file.npz' does not exist"),
-    (["--clips", "{empty}"], "argument --clips: folder '{empty}' holds no .npz clips"),
-    (["--starts", "0"], "argument --starts: '0' must be an integer >= 1"),
+    (["--clips", "humanoid3d_nope"], "--clips: 'humanoid3d_nope' is no humanoid clip id"),
+    (["--clips", "no/such/file.npz"], "--clips: file 'no/such/file.npz' does not exist"),
+    (["--clips", "{empty}"], "--clips: folder '{empty}' holds no .npz clips"),
+    (["--starts", "0"], "--starts = 0 is not allowed: give an integer >= 1"),
 ])
 def test_bad_clips_and_starts_are_usage_errors_naming_the_value(run_dir: Path, tmp_path: Path, bad, says, capsys) -> None:
     from learner.evaluation import evaluate

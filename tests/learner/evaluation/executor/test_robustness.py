@@ -77,16 +77,16 @@ def test_shape_controller_runs_the_mass_rows_and_says_why_it_skips_the_rest(tmp_
 
 
 @pytest.mark.parametrize("flag, bad, says", [
-    ("--rows", "speed,wind", "'speed,wind' must be a comma-separated list of speed, projectile, mass"),
-    ("--starts", "0", "'0' must be an integer >= 1"),
-    ("--clips", "humanoid3d_nope", "'humanoid3d_nope' is no humanoid clip id"),
+    ("--rows", "speed,wind", "--rows: 'speed,wind' must be a comma-separated list of speed, projectile, mass"),
+    ("--starts", "0", "--starts = 0 is not allowed: give an integer >= 1"),
+    ("--clips", "humanoid3d_nope", "--clips: 'humanoid3d_nope' is no humanoid clip id"),
 ])
 def test_bad_options_are_usage_errors_naming_the_value(flag, bad, says, capsys) -> None:
     with pytest.raises(SystemExit) as exc:
         robustness.main(["--checkpoint", "no/such/checkpoint", flag, bad])
     assert exc.value.code == 2
     err = capsys.readouterr().err
-    assert f"argument {flag}: " in err and says in err, err
+    assert says in err, err
 
 
 def test_options_of_the_other_kind_of_checkpoint_are_refused(tmp_path: Path, capsys) -> None:

@@ -28,10 +28,10 @@ def test_the_survey_compares_root_height_rules_on_the_evaluation_shapes(tmp_path
 
 
 @pytest.mark.parametrize("argv, says", [
-    (["--clearances", "0.5"], "must be a number of metres in [0, 0.1]"),
-    (["--rules", "stilts"], "invalid choice: 'stilts'"),
-    (["--preset", "fish"], "invalid choice: 'fish'"),
-    (["--shapes", "0"], "must be an integer >= 1"),
+    (["--clearances", "0.5"], "--clearances = (0.5,) is not allowed: give each a finite number in [0, 0.1]"),
+    (["--rules", "stilts"], "invalid choice 'stilts' for argument '--rules'"),
+    (["--preset", "fish"], "invalid choice 'fish' for argument '--preset'"),
+    (["--shapes", "0"], "--shapes = 0 is not allowed: give an integer >= 1"),
 ])
 def test_bad_arguments_are_usage_errors(argv, says, capsys) -> None:
     from learner.evaluation.shape import reference_survey
