@@ -234,16 +234,16 @@ def main(argv: list[str]) -> int:
     if args.morph:
         ignored = harness.changed_flags(args, NOT_MORPH, {"render": "--no-render"})
         if ignored:
-            raise SystemExit(f"{', '.join(ignored)}: not options of the morph demo "
-                             "(--morph takes --out, --strength, --schedule, --every, --gif)")
+            refuse(PROG, f"{', '.join(ignored)}: not options of the morph demo "
+                         "(--morph takes --out, --strength, --schedule, --every, --gif)")
         return morph_demo.run(morph_demo.MorphOptions(
             checkpoint=args.checkpoint, out=args.out, schedule=args.schedule, gif=args.gif,
             strength=1.0 if args.strength is None else args.strength, every=args.every or 1))
     morph_only = harness.changed_flags(args, MORPH_ONLY)
     if args.strength is not None:
-        raise SystemExit(f"--strength {args.strength} is a morph demo option: use it with --morph")
+        refuse(PROG, f"--strength {args.strength} is a morph demo option: use it with --morph")
     if morph_only:
-        raise SystemExit(f"{', '.join(morph_only)}: morph demo options: use them with --morph")
+        refuse(PROG, f"{', '.join(morph_only)}: morph demo options: use them with --morph")
     loaded = checkpoint.load_trained(args.checkpoint)
     from common.tasks.registry import make_env, task_space
 

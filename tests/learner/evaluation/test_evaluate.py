@@ -391,17 +391,18 @@ def test_morph_demo_changes_the_body_during_the_episode(tmp_path: Path) -> None:
     assert result["morphs"] >= 5
 
 
-def test_evaluate_morph_forwards_the_strength_and_refuses_it_alone(tmp_path: Path) -> None:
+def test_evaluate_morph_forwards_the_strength_and_refuses_it_alone(tmp_path: Path, capsys) -> None:
     from learner.evaluation import evaluate
 
     ckpt = _tiny_checkpoint(tmp_path, "tiny")
     out = tmp_path / "morph"
     assert evaluate.main(["--checkpoint", str(ckpt), "--morph", "--strength", "0.5", "--out", str(out)]) == 0
     assert json.loads((out / "morph.json").read_text())["strength"] == 0.5
-    with pytest.raises(SystemExit, match="--strength 0.5 is a morph demo option"):
-        evaluate.main(["--checkpoint", str(ckpt), "--strength", "0.5", "--out", str(tmp_path / "e")])
-    with pytest.raises(SystemExit, match="--shapes, --episode-s: not options of the morph demo"):
-        evaluate.main(["--checkpoint", str(ckpt), "--morph", "--shapes", "20", "--episode-s", "5"])
+    for argv, says in ((["--strength", "0.5", "--out", str(tmp_path / "e")], "--strength 0.5 is a morph demo option"),
+                       (["--morph", "--shapes", "20", "--episode-s", "5"], "--shapes, --episode-s: not options of the morph demo")):
+        with pytest.raises(SystemExit) as exc:
+            evaluate.main(["--checkpoint", str(ckpt), *argv])
+        assert exc.value.code == 2 and says in capsys.readouterr().err
 
 
 def test_bad_map_params_fail_before_any_episode_and_a_render_failure_keeps_the_results(tmp_path: Path,
