@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import functools
 import math
+from typing import Sequence
 
 import mujoco
 import numpy as np
@@ -48,7 +49,7 @@ from common.motion.reference import CharacterMotion
 from common.params import ParamSpace
 from common.tasks.executor import rewards as rw
 from common.tasks.base import TaskConfig, diverged_step, step_physics
-from common.tasks.executor.observations import BodyKin, observation, read_kinematics
+from common.tasks.executor.observations import BodyKin, kinematics_from_arrays, observation, read_kinematics, read_kinematics_batch
 from common.tasks.observations import JointLayout
 from common.tasks.executor.schedulers.base import DatasetScheduler, Scheduler, TargetFrame
 
@@ -184,13 +185,19 @@ def pd_lead_s(model: mujoco.MjModel) -> np.ndarray:
 
 
 def pd_target(layout: JointLayout, frame: TargetFrame, lead_s: np.ndarray | None = None) -> np.ndarray:
-    """The PD targets `[nu]` of a zero action: the frame's joint angles (ball joints as rotation
-    vectors); with `lead_s` (`pd_lead_s`, the `pd_velocity_target` switch) plus the frame's joint
-    velocities times kd / kp, which turns the actuators' damping kd (0 - qdot) into
-    kd (qdot~ - qdot): the PD with a target velocity (Tan et al. 2011); DeepMimic's has none."""
-    target = layout.to_vector(frame.qpos)
+    """The PD targets `[nu]` of a zero action (`pd_targets` of one frame)."""
+    return pd_targets(layout, frame.qpos, frame.qvel, lead_s)
+
+
+def pd_targets(layout: JointLayout, qpos: np.ndarray, qvel: np.ndarray, lead_s: np.ndarray | None = None) -> np.ndarray:
+    """The PD targets `[..., nu]` of a zero action for target frames `qpos` `[..., nq]`, `qvel`
+    `[..., nv]`: the frames' joint angles (ball joints as rotation vectors); with `lead_s`
+    (`pd_lead_s`, the `pd_velocity_target` switch) plus the frames' joint velocities times
+    kd / kp, which turns the actuators' damping kd (0 - qdot) into kd (qdot~ - qdot): the PD
+    with a target velocity (Tan et al. 2011); DeepMimic's has none."""
+    target = layout.to_vector(qpos)
     if lead_s is not None:
-        target = target + lead_s * frame.qvel[6 : 6 + len(lead_s)]
+        target = target + lead_s * qvel[..., 6 : 6 + len(lead_s)]
     return target
 
 
@@ -227,18 +234,62 @@ class ExecutorEnv:
     def clips(cfg: TaskConfig) -> list[tuple[str, str]]:
         return executor_clips(cfg)
 
-    def __init__(self, cfg: TaskConfig, seed: int = 0):
+    def __init__(self, cfg: TaskConfig, seed: int = 0, like: ExecutorEnv | None = None):
+        """`like`: an environment of the same `cfg` whose compiled model (unless projectiles make
+        the model per environment), clip library and clip manager this one shares
+        (`ExecutorBatch`); it behaves as one built alone."""
         self.cfg, self.ex = cfg, cfg.executor
         self.rng = np.random.default_rng(seed)
         self._segments: list[tuple[str, bool]] = []  # ended clip segments not yet drained
         self._segment_clip = ""
         self.space = self.param_space(cfg)
         self.dt = 1.0 / cfg.control_hz
-        ch = load_character(CHARACTER, timestep_s=1.0 / cfg.sim_hz)
+        ch = like.character if like is not None else load_character(CHARACTER, timestep_s=1.0 / cfg.sim_hz)
         self.character = ch
         self.ref_model = ch.model
-        self.ref_data = mujoco.MjData(self.ref_model)
+        self.ref_data = like.ref_data if like is not None else mujoco.MjData(self.ref_model)
         self._target_kin_memo: dict[bytes, BodyKin] = {}
+        self.model = like.model if like is not None and not self.ex.projectile else self._compile(ch)
+        self.nq, self.nv, self.nu = self.ref_model.nq, self.ref_model.nv, self.ref_model.nu
+        self.base_mass = self.model.body_mass.copy()
+        self.base_inertia = self.model.body_inertia.copy()
+        self.mass_kg = float(ch.mass_kg)
+        if self.ex.actuation not in ("torque", "pd"):
+            raise ValueError(f"actuation {self.ex.actuation!r} is not one of torque, pd")
+        if self.ex.actuation == "torque":
+            self.efforts = effort_factors(self.model, self.mass_kg, self.ex.effort_scale)
+        self.pd_lead_s = pd_lead_s(self.model) if self.ex.actuation == "pd" and self.ex.pd_velocity_target else None
+        self.layout = JointLayout(self.ref_model)
+        self.bodies = np.arange(1, self.ref_model.nbody)
+        self.body_slice = slice(1, self.ref_model.nbody)
+        """The character's bodies (ids, root first; as a slice): what `BodyKin` holds."""
+        self.clip_list = executor_clips(cfg)
+        if not self.clip_list:
+            raise ValueError(f"no clips to track for split {self.ex.split!r} (seed {self.ex.split_seed})")
+        self.library = like.library if like is not None else MotionLibrary()
+        self._motions: dict[str, CharacterMotion] = like._motions if like is not None else {}
+        self.clip_manager = (like.clip_manager if like is not None else
+                             ClipManager(self.clip_list, duration_s=lambda c: self._motion(c).duration_s))
+        """Draws the clip and start of every schedule the environment begins itself (a reset without
+        a clip, a reschedule), by the motion balancer's probabilities. NOTE: unweighted: the
+        sampler's adaptive clip weights (`sampler/clip_outcomes.py`) shape the episode's first clip
+        (the sampler's draw) but not the reschedules, since draws reach the actors without them."""
+        lookback = self.ex.rsis_frames[1] + 1
+        self.scheduler = DatasetScheduler(self.ref_model, self._motion, self.clip_manager, None, self.dt,
+                                          speed=self.ex.speed, at_end=self.ex.at_clip_end, lookback=lookback,
+                                          lookahead=self.ex.tau + 1, velocity_window=self.ex.target_velocity_window,
+                                          kinematics=self.reference_kinematics)
+        self.balls = [self.model.body(f"projectile{i}").id for i in range(PROJECTILES)] if self.ex.projectile else []
+        self._thrown_at = [-1] * len(self.balls)
+        self._next_ball = 0
+        self.data = mujoco.MjData(self.model)
+        obs, _ = self.reset(seed, self.space.default_array)
+        self.obs_dim = int(obs.shape[0])
+        self.act_dim = int(self.nu)
+
+    def _compile(self, ch) -> mujoco.MjModel:
+        """The simulated model: the character with the configured armatures, projectile balls and
+        actuation (torque: motors with effort factors and passive damping; pd: the builder's PD)."""
         spec = ch.spec.copy()
         if self.ex.projectile:
             for i in range(PROJECTILES):
@@ -249,41 +300,11 @@ class ExecutorEnv:
         set_armature(spec, "ankle", self.ex.ankle_armature)
         for part in ("shoulder", "elbow"):
             set_armature(spec, part, self.ex.arm_armature)
-        self.model = spec.compile()
-        self.nq, self.nv, self.nu = self.ref_model.nq, self.ref_model.nv, self.ref_model.nu
-        self.base_mass = self.model.body_mass.copy()
-        self.base_inertia = self.model.body_inertia.copy()
-        self.mass_kg = float(ch.mass_kg)
+        model = spec.compile()
         if self.ex.actuation == "torque":
-            self.efforts = effort_factors(self.model, self.mass_kg, self.ex.effort_scale)
-            torque_actuation(self.model, self.efforts)
-            passive_damping(self.model, self.ex.passive_damping)
-        elif self.ex.actuation != "pd":
-            raise ValueError(f"actuation {self.ex.actuation!r} is not one of torque, pd")
-        self.pd_lead_s = pd_lead_s(self.model) if self.ex.actuation == "pd" and self.ex.pd_velocity_target else None
-        self.layout = JointLayout(self.ref_model)
-        self.bodies = np.arange(1, self.ref_model.nbody)
-        self.clip_list = executor_clips(cfg)
-        if not self.clip_list:
-            raise ValueError(f"no clips to track for split {self.ex.split!r} (seed {self.ex.split_seed})")
-        self.library = MotionLibrary()
-        self._motions: dict[str, CharacterMotion] = {}
-        self.clip_manager = ClipManager(self.clip_list, duration_s=lambda c: self._motion(c).duration_s)
-        """Draws the clip and start of every schedule the environment begins itself (a reset without
-        a clip, a reschedule), by the motion balancer's probabilities. NOTE: unweighted: the
-        sampler's adaptive clip weights (`sampler/clip_outcomes.py`) shape the episode's first clip
-        (the sampler's draw) but not the reschedules, since draws reach the actors without them."""
-        lookback = self.ex.rsis_frames[1] + 1
-        self.scheduler = DatasetScheduler(self.ref_model, self._motion, self.clip_manager, None, self.dt,
-                                          speed=self.ex.speed, at_end=self.ex.at_clip_end, lookback=lookback,
-                                          lookahead=self.ex.tau + 1, velocity_window=self.ex.target_velocity_window)
-        self.balls = [self.model.body(f"projectile{i}").id for i in range(PROJECTILES)] if self.ex.projectile else []
-        self._thrown_at = [-1] * len(self.balls)
-        self._next_ball = 0
-        self.data = mujoco.MjData(self.model)
-        obs, _ = self.reset(seed, self.space.default_array)
-        self.obs_dim = int(obs.shape[0])
-        self.act_dim = int(self.nu)
+            torque_actuation(model, effort_factors(model, float(ch.mass_kg), self.ex.effort_scale))
+            passive_damping(model, self.ex.passive_damping)
+        return model
 
     def _motion(self, clip_id: str) -> CharacterMotion:
         if clip_id not in self._motions:
@@ -318,44 +339,56 @@ class ExecutorEnv:
 
     # ---- state ----
 
+    def reference_kinematics(self, qpos: np.ndarray, qvel: np.ndarray) -> BodyKin:
+        """`BodyKin` `[R]` of R frames of the character (`qpos` `[R, nq]`, `qvel` `[R, nv]`): the
+        same MuJoCo calls on each frame as on the character (`mj_kinematics`, `mj_comPos`,
+        `mj_comVel`), run on the reference model. The `DatasetScheduler` calls it on a table of
+        schedule rows at a time (`DatasetScheduler.kinematics_at`)."""
+        d, m, n = self.ref_data, self.ref_model, len(qpos)
+        xpos, xmat = np.empty((n, m.nbody, 3)), np.empty((n, m.nbody, 9))
+        cvel, com = np.empty((n, m.nbody, 6)), np.empty((n, m.nbody, 3))
+        for r in range(n):
+            d.qpos[:], d.qvel[:] = qpos[r], qvel[r]
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_comPos(m, d)
+            mujoco.mj_comVel(m, d)
+            xpos[r], xmat[r], cvel[r], com[r] = d.xpos, d.xmat, d.cvel, d.subtree_com
+        return kinematics_from_arrays(xpos, xmat, cvel, com, m.body_rootid, self.body_slice)
+
     def _target_kin(self, frame: TargetFrame) -> BodyKin:
+        """`reference_kinematics` of one frame, for schedulers without a kinematics table."""
         # NOTE: memoized on the frame's exact bytes: the frame observed as "next" in one step is
         # the tracked one in the next step, so without it every frame's kinematics ran twice.
         key = frame.qpos.tobytes() + frame.qvel.tobytes()
         kin = self._target_kin_memo.get(key)
         if kin is None:
-            d = self.ref_data
-            d.qpos[:], d.qvel[:] = frame.qpos, frame.qvel
-            mujoco.mj_kinematics(self.ref_model, d)
-            mujoco.mj_comPos(self.ref_model, d)
-            mujoco.mj_comVel(self.ref_model, d)
-            kin = read_kinematics(self.ref_model, d, self.bodies)
+            kin = self.reference_kinematics(frame.qpos[None], frame.qvel[None])[0]
             if len(self._target_kin_memo) > 2 * (self.ex.tau + 1):
                 self._target_kin_memo.pop(next(iter(self._target_kin_memo)))  # the oldest
             self._target_kin_memo[key] = kin
         return kin
 
-    def _actual_kin(self) -> BodyKin:
-        # NOTE: after mj_step the body poses are those before the last integration; recompute
-        # them (kinematics and velocities only, no contacts) so state and targets are in step.
-        mujoco.mj_kinematics(self.model, self.data)
-        mujoco.mj_comPos(self.model, self.data)
-        mujoco.mj_comVel(self.model, self.data)
-        return read_kinematics(self.model, self.data, self.bodies)
+    def target_kinematics(self) -> BodyKin:
+        """`BodyKin` `[tau + 1]` of the target frames 0..tau control steps from now: the
+        `DatasetScheduler`'s table rows, or each frame's kinematics (other schedulers)."""
+        offsets = range(self.ex.tau + 1)
+        if getattr(self.scheduler, "kinematics", None) is not None:
+            return self.scheduler.kinematics_at(offsets)
+        return BodyKin.stack([self._target_kin(self.scheduler.frame(i)) for i in offsets])
 
     def tracking_kinematics(self) -> tuple[BodyKin, BodyKin]:
         """(the character's, the tracked target frame's) `BodyKin` now: what the reward terms of
         the last step compared (for analyses such as `morphmimic break-probe`)."""
-        return self._actual_kin(), self._target_kin(self.scheduler.frame(0))
+        return character_kinematics([self])[0], self.target_kinematics()[0]
+
+    def observe_now(self) -> np.ndarray:
+        """The observation `[obs_dim]` of the state now (what a step or reset returns)."""
+        return observe([self], character_kinematics([self]))[0]
 
     @property
     def qpos(self) -> np.ndarray:
         """The character's qpos `[nq]` (without the projectile's)."""
         return self.data.qpos[: self.nq]
-
-    def _observe(self, actual: BodyKin) -> np.ndarray:
-        targets = [self._target_kin(self.scheduler.frame(i)) for i in range(1, self.ex.tau + 1)]
-        return observation(actual, targets, self.params)
 
     # ---- the Env contract ----
 
@@ -389,47 +422,12 @@ class ExecutorEnv:
         self.grace = 0 if on_frame else self.ex.catch_up_steps
         self.last_terms: dict[str, float] = {}
         self._segment_clip = getattr(self.scheduler, "clip_id", "")
-        return self._observe(self._actual_kin()), {"clip_id": getattr(self.scheduler, "clip_id", ""), "rsis_offset": offset,
+        return self.observe_now(), {"clip_id": getattr(self.scheduler, "clip_id", ""), "rsis_offset": offset,
                                                    "on_frame": on_frame}
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
-        a = np.asarray(action, dtype=np.float64)
-        if not np.isfinite(a).all():  # checked first: nan_to_num on every step cost 30 us
-            a = np.nan_to_num(a)
-        if self.ex.actuation == "torque":
-            self.data.ctrl[:] = np.clip(a, -1.0, 1.0)
-        else:
-            self.data.ctrl[:] = self.pd_target(self.scheduler.frame(1)) + self.ex.pd_action_scale * np.clip(a, -3.0, 3.0)
-        before = self.qpos.copy() if self.ex.joint_velocity == "step_mean" else None
-        diverged = step_physics(self.model, self.data, self.cfg.substeps)
-        self.k += 1
-        if self.balls:
-            self._expire_projectiles()
-        if diverged:
-            self._end_segment(False)
-            return diverged_step(self.obs_dim, ended_by="divergence")
-        rescheduled = self.scheduler.advance(self.rng, self.qpos.copy())
-        if rescheduled:
-            self.grace = self.k + self.ex.catch_up_steps
-            self._end_segment(True)
-            self._segment_clip = getattr(self.scheduler, "clip_id", "")
-        actual = self._actual_kin()
-        target_frame = self.scheduler.frame(0)
-        target = self._target_kin(target_frame)
-        errors, pos_err = self._errors(actual, target, target_frame, before)
-        terms = rw.reward_terms(errors, self.ex.reward_scales)
-        self.last_terms = terms
-        reward = rw.weighted_sum(terms, self.ex.reward_weights)
-        ended_by = rw.termination(terms, self.ex.reward_weights, self.ex.termination, self.ex.alpha, self.ex.terminate_on)
-        if ended_by is None and self.k < self.grace and self.ex.catch_up_ends == "on_track":
-            self.grace = self.k  # caught up: the rule applies from the next step
-        terminated = ended_by is not None and self.k > self.grace
-        truncated = not terminated and (self.k >= self.cfg.episode_steps or self.scheduler.done)
-        if terminated or (truncated and self.scheduler.done):  # a time limit says nothing of the clip
-            self._end_segment(not terminated)
-        info = {"diverged": False, "terms": terms, "ended_by": ended_by if terminated else None,
-                "rescheduled": rescheduled, **pos_err, **self.scheduler.status()}
-        return self._observe(actual), reward, terminated, truncated, info
+        obs, rewards, terminated, truncated, infos = step_envs([self], np.asarray(action)[None])
+        return obs[0], float(rewards[0]), bool(terminated[0]), bool(truncated[0]), infos[0]
 
     def _end_segment(self, tracked: bool) -> None:
         if self._segment_clip:
@@ -449,31 +447,6 @@ class ExecutorEnv:
     def pd_target(self, frame: TargetFrame) -> np.ndarray:
         """The PD targets `[nu]` of a zero action (`pd_target`)."""
         return pd_target(self.layout, frame, self.pd_lead_s)
-
-    def _errors(self, actual: BodyKin, target: BodyKin, frame: TargetFrame,
-                qpos_before: np.ndarray | None = None) -> tuple[dict[str, float], dict[str, float]]:
-        """Each reward term's error (UniCon eq. 5's kernels' arguments) and the position errors in
-        metres; `qpos_before` (the joint angles a control step ago) makes the joint-velocity term
-        compare the step's mean velocity (`ExecutorConfig.joint_velocity = "step_mean"`)."""
-        q, qr = self.qpos, frame.qpos
-        qvel = self.data.qvel[: self.nv]
-        if qpos_before is not None:
-            qvel = np.empty(self.nv)
-            mujoco.mj_differentiatePos(self.ref_model, qvel, self.dt, qpos_before, q)
-        lay = self.layout
-        rel, rel_ref = actual.relative_positions(), target.relative_positions()
-        errors = {
-            "root_position": rw.com_error(actual.com, target.com),
-            "root_rotation": rw.root_rotation_error(q[3:7], qr[3:7]),
-            "joint_position": rw.joint_position_error(rel, rel_ref),
-            "joint_rotation": rw.joint_rotation_error(q[lay.ball_qpos], qr[lay.ball_qpos], q[lay.hinge_qpos], qr[lay.hinge_qpos]),
-            "joint_velocity": rw.joint_velocity_error(qvel[6:], frame.qvel[6:]),
-        }
-        positions = {
-            "joint_error_m": float(np.mean(np.linalg.norm(rel - rel_ref, axis=1))),
-            "body_error_m": float(np.mean(np.linalg.norm(actual.pos - target.pos, axis=1))),
-        }
-        return errors, positions
 
     # ---- perturbations for the zero-shot robustness tests ----
 
@@ -542,3 +515,133 @@ class ExecutorEnv:
         self.model.body_gravcomp[self.balls[i]] = 0.0
         self._collides(i, True)
         self._thrown_at[i] = self.k
+
+
+# ---- the step over a batch of environments (`ExecutorEnv.step` is the batch of one) ----
+
+
+def _stack(arrays: Sequence[np.ndarray]) -> np.ndarray:
+    """`np.stack(arrays)`; a view of a single array (the single environment's batch of one)."""
+    return arrays[0][None] if len(arrays) == 1 else np.stack(arrays)
+
+
+def character_kinematics(envs: Sequence[ExecutorEnv]) -> BodyKin:
+    """`BodyKin` `[N]` of each environment's character now.
+
+    NOTE: after mj_step the body poses are those before the last integration; they are
+    recomputed (kinematics and velocities only, no contacts) so state and targets are in step."""
+    for env in envs:
+        mujoco.mj_kinematics(env.model, env.data)
+        mujoco.mj_comPos(env.model, env.data)
+        mujoco.mj_comVel(env.model, env.data)
+    return read_kinematics_batch(envs[0].model, [env.data for env in envs], envs[0].body_slice)
+
+
+def observe(envs: Sequence[ExecutorEnv], actual: BodyKin, targets: BodyKin | None = None) -> np.ndarray:
+    """Observations `[N, obs_dim]` of the environments (`observation`) from their characters'
+    `BodyKin` `[N]` and their target frames' `[N, tau + 1]` (looked up when None)."""
+    if targets is None:
+        targets = BodyKin.stack([env.target_kinematics() for env in envs])
+    return observation(actual, targets[:, 1:], _stack([env.params for env in envs]))
+
+
+def tracking_errors(envs: Sequence[ExecutorEnv], actual: BodyKin, target: BodyKin, frames: Sequence[TargetFrame],
+                    qpos_before: Sequence[np.ndarray | None]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Each environment's five reward terms' errors `[N, 5]` (UniCon eq. 5's kernels' arguments,
+    in `rewards.TERMS` order) and position errors in metres (`joint_error_m`, `body_error_m`,
+    `[N]` each), from the characters' and tracked frames' `BodyKin` `[N]` and the tracked
+    `frames`; an environment's `qpos_before` (its joint angles a control step ago) makes the
+    joint-velocity term compare the step's mean velocity (`ExecutorConfig.joint_velocity = "step_mean"`)."""
+    first = envs[0]
+    q = _stack([env.qpos for env in envs])
+    qr = _stack([f.qpos for f in frames])
+    qvel = np.stack([env.data.qvel[: env.nv] for env in envs])  # a copy: step_mean overwrites rows
+    for i, before in enumerate(qpos_before):
+        if before is not None:
+            mujoco.mj_differentiatePos(first.ref_model, qvel[i], first.dt, before, q[i])
+    qvel_ref = _stack([f.qvel for f in frames])
+    lay = first.layout
+    rel, rel_ref = actual.relative_positions(), target.relative_positions()
+    errors = np.stack([
+        rw.com_errors(actual.com, target.com),
+        rw.root_rotation_errors(q[:, 3:7], qr[:, 3:7]),
+        rw.joint_position_errors(rel, rel_ref),
+        rw.joint_rotation_errors(q[:, lay.ball_qpos], qr[:, lay.ball_qpos], q[:, lay.hinge_qpos], qr[:, lay.hinge_qpos]),
+        rw.joint_velocity_errors(qvel[:, 6:], qvel_ref[:, 6:]),
+    ], axis=-1)
+    positions = {
+        "joint_error_m": np.mean(np.linalg.norm(rel - rel_ref, axis=-1), axis=-1),
+        "body_error_m": np.mean(np.linalg.norm(actual.pos - target.pos, axis=-1), axis=-1),
+    }
+    return errors, positions
+
+
+def step_envs(envs: Sequence[ExecutorEnv], actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[dict]]:
+    """One control step of every environment of `envs` (one configuration) with `actions`
+    `[N, nu]`: observations `[N, obs_dim]`, rewards `[N]`, terminated `[N]`, truncated `[N]` and
+    one info dict each (see `ExecutorEnv`). Actuation, kinematics features, reward terms,
+    termination and observations are array operations over the N environments, each state's
+    arithmetic the same as alone (so environment i's results are those of stepping it alone,
+    bit for bit); physics (`step_physics`, with its divergence check), the scheduler's advance
+    (with the environment's own generator) and the episode bookkeeping run per environment."""
+    first = envs[0]
+    ex, n = first.ex, len(envs)
+    a = np.asarray(actions, dtype=np.float64)
+    if not np.isfinite(a).all():  # checked first: nan_to_num on every step cost 30 us
+        a = np.nan_to_num(a)
+    if ex.actuation == "torque":
+        ctrl = np.clip(a, -1.0, 1.0)
+    else:
+        nxt = [env.scheduler.frame(1) for env in envs]
+        ctrl = pd_targets(first.layout, _stack([f.qpos for f in nxt]), _stack([f.qvel for f in nxt]), first.pd_lead_s)
+        ctrl = ctrl + ex.pd_action_scale * np.clip(a, -3.0, 3.0)
+    obs = np.zeros((n, first.obs_dim), np.float32)
+    rewards = np.zeros(n)
+    terminated = np.zeros(n, bool)
+    truncated = np.zeros(n, bool)
+    infos: list[dict] = [{} for _ in range(n)]
+    live, befores, rescheduled = [], [], []
+    for i, env in enumerate(envs):
+        env.data.ctrl[:] = ctrl[i]
+        before = env.qpos.copy() if ex.joint_velocity == "step_mean" else None
+        diverged = step_physics(env.model, env.data, env.cfg.substeps)
+        env.k += 1
+        if env.balls:
+            env._expire_projectiles()
+        if diverged:
+            env._end_segment(False)
+            obs[i], rewards[i], terminated[i], truncated[i], infos[i] = diverged_step(first.obs_dim, ended_by="divergence")
+            continue
+        moved = env.scheduler.advance(env.rng, env.qpos.copy())
+        if moved:
+            env.grace = env.k + ex.catch_up_steps
+            env._end_segment(True)
+            env._segment_clip = getattr(env.scheduler, "clip_id", "")
+        live.append(i)
+        befores.append(before)
+        rescheduled.append(moved)
+    if not live:
+        return obs, rewards, terminated, truncated, infos
+    running = [envs[i] for i in live]
+    actual = character_kinematics(running)
+    targets = BodyKin.stack([env.target_kinematics() for env in running])
+    frames = [env.scheduler.frame(0) for env in running]
+    errors, positions = tracking_errors(running, actual, targets[:, 0], frames, befores)
+    terms = rw.term_values(errors, ex.reward_scales)
+    step_rewards = rw.weighted_sums(terms, ex.reward_weights)
+    ends = rw.terminations(terms, ex.reward_weights, ex.termination, ex.alpha, ex.terminate_on)
+    obs[live] = observe(running, actual, targets)
+    for j, (i, env) in enumerate(zip(live, running)):
+        ended_by = ends[j]
+        if ended_by is None and env.k < env.grace and ex.catch_up_ends == "on_track":
+            env.grace = env.k  # caught up: the rule applies from the next step
+        term = ended_by is not None and env.k > env.grace
+        trunc = not term and (env.k >= env.cfg.episode_steps or env.scheduler.done)
+        if term or (trunc and env.scheduler.done):  # a time limit says nothing of the clip
+            env._end_segment(not term)
+        env.last_terms = {name: float(v) for name, v in zip(rw.TERMS, terms[j])}
+        rewards[i], terminated[i], truncated[i] = step_rewards[j], term, trunc
+        infos[i] = {"diverged": False, "terms": env.last_terms, "ended_by": ended_by if term else None,
+                    "rescheduled": rescheduled[j], **{k: float(v[j]) for k, v in positions.items()},
+                    **env.scheduler.status()}
+    return obs, rewards, terminated, truncated, infos

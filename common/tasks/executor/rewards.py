@@ -32,45 +32,114 @@ POSE_TERMS = TERMS[:4]
 END_EFFECTORS_IN_DEEPMIMIC = 4
 
 
+def _square_each(x: np.ndarray) -> np.ndarray:
+    """x ** 2 of each element as a numpy scalar squares it (libm's pow), which differs from the
+    array square (x * x) in the last bit for about one value in a thousand."""
+    x = np.asarray(x, dtype=np.float64)
+    return np.array([v ** 2 for v in x.reshape(-1)]).reshape(x.shape)
+
+
+def _contiguous(x) -> np.ndarray:
+    """x as a C-ordered float64 array. NOTE: numpy sums the last axis of a C-ordered array row
+    by row (each row as a 1-D sum, pairwise), but of another layout (a fancy-indexed batch is
+    one) column by column, which rounds differently: every sum here reads C-ordered arrays so a
+    batch's rows equal the states' own sums bit for bit."""
+    return np.ascontiguousarray(x, dtype=np.float64)
+
+
+def com_errors(com: np.ndarray, com_ref: np.ndarray) -> np.ndarray:
+    """||c - c~||^2 (m^2) of centres of mass `[..., 3]` (world frame) -> `[...]`."""
+    d = _contiguous(com) - _contiguous(com_ref)
+    return (d[..., None, :] @ d[..., :, None])[..., 0, 0]
+
+
+def root_rotation_errors(quat: np.ndarray, quat_ref: np.ndarray) -> np.ndarray:
+    """Squared geodesic angles (rad^2) between root quaternions (w, x, y, z) `[..., 4]` -> `[...]`."""
+    return _square_each(quat_angle(_contiguous(quat), _contiguous(quat_ref)))
+
+
+def joint_position_errors(rel_pos: np.ndarray, rel_pos_ref: np.ndarray) -> np.ndarray:
+    """(4 / B) sum_j ||p_j - p~_j||^2 (m^2) of body positions `[..., B, 3]`, each relative to its
+    own character's root and expressed in that root's heading frame (see module docstring)."""
+    d = _contiguous(rel_pos) - _contiguous(rel_pos_ref)
+    lead = d.shape[:-2]
+    return np.sum((d * d).reshape(*lead, -1), axis=-1) * END_EFFECTORS_IN_DEEPMIMIC / max(1, d.shape[-2])
+
+
+def joint_rotation_errors(balls: np.ndarray, balls_ref: np.ndarray, hinges: np.ndarray, hinges_ref: np.ndarray) -> np.ndarray:
+    """sum_j angle^2 (rad^2) over ball joints (quaternions `[..., Nb, 4]`) and hinges (angles `[..., Nh]`)."""
+    h = _contiguous(hinges) - _contiguous(hinges_ref)
+    a = quat_angle(_contiguous(balls), _contiguous(balls_ref)) if np.shape(balls)[-2] else np.zeros((*h.shape[:-1], 0))
+    return np.sum(a * a, axis=-1) + np.sum(h * h, axis=-1)
+
+
+def joint_velocity_errors(qvel_joints: np.ndarray, qvel_joints_ref: np.ndarray) -> np.ndarray:
+    """sum ||qdot - qdot~||^2 ((rad/s)^2) over the non-root DOF `[..., nv - 6]` -> `[...]`."""
+    d = _contiguous(qvel_joints) - _contiguous(qvel_joints_ref)
+    return (d[..., None, :] @ d[..., :, None])[..., 0, 0]
+
+
 def com_error(com: np.ndarray, com_ref: np.ndarray) -> float:
     """||c - c~||^2 (m^2) of the centres of mass `[3]` (world frame)."""
-    d = np.asarray(com, dtype=np.float64) - np.asarray(com_ref, dtype=np.float64)
-    return float(d @ d)
+    return float(com_errors(com, com_ref))
 
 
 def root_rotation_error(quat: np.ndarray, quat_ref: np.ndarray) -> float:
     """Squared geodesic angle (rad^2) between root quaternions (w, x, y, z) `[4]`."""
-    return float(quat_angle(quat, quat_ref) ** 2)
+    return float(root_rotation_errors(quat, quat_ref))
 
 
 def joint_position_error(rel_pos: np.ndarray, rel_pos_ref: np.ndarray) -> float:
-    """(4 / B) sum_j ||p_j - p~_j||^2 (m^2) of body positions `[B, 3]`, each relative to its own
-    character's root and expressed in that root's heading frame (see module docstring)."""
-    d = np.asarray(rel_pos, dtype=np.float64) - np.asarray(rel_pos_ref, dtype=np.float64)
-    return float(np.sum(d * d) * END_EFFECTORS_IN_DEEPMIMIC / max(1, d.shape[0]))
+    """`joint_position_errors` of one state `[B, 3]`."""
+    return float(joint_position_errors(rel_pos, rel_pos_ref))
 
 
 def joint_rotation_error(balls: np.ndarray, balls_ref: np.ndarray, hinges: np.ndarray, hinges_ref: np.ndarray) -> float:
     """sum_j angle^2 (rad^2) over ball joints (quaternions `[Nb, 4]`) and hinges (angles `[Nh]`)."""
-    a = quat_angle(np.asarray(balls).reshape(-1, 4), np.asarray(balls_ref).reshape(-1, 4)) if len(balls) else np.zeros(0)
-    h = np.asarray(hinges, dtype=np.float64) - np.asarray(hinges_ref, dtype=np.float64)
-    return float(np.sum(a * a) + np.sum(h * h))
+    return float(joint_rotation_errors(np.reshape(balls, (-1, 4)), np.reshape(balls_ref, (-1, 4)), hinges, hinges_ref))
 
 
 def joint_velocity_error(qvel_joints: np.ndarray, qvel_joints_ref: np.ndarray) -> float:
     """sum ||qdot - qdot~||^2 ((rad/s)^2) over the non-root DOF `[nv - 6]`."""
-    d = np.asarray(qvel_joints, dtype=np.float64) - np.asarray(qvel_joints_ref, dtype=np.float64)
-    return float(d @ d)
+    return float(joint_velocity_errors(qvel_joints, qvel_joints_ref))
+
+
+def term_values(errors: np.ndarray, scales: tuple[float, ...]) -> np.ndarray:
+    """exp(-k err) `[..., 5]` of the five terms' errors `[..., 5]` (in `TERMS` order)."""
+    return np.exp(-np.asarray(scales, dtype=np.float64) * errors)
+
+
+def weighted_sums(terms: np.ndarray, weights: tuple[float, ...]) -> np.ndarray:
+    """r = sum_i w_i r_i (UniCon eq. 5) of terms `[..., 5]`, added in `TERMS` order."""
+    total = 0
+    for i, w in enumerate(weights):
+        total = total + w * terms[..., i]
+    return total
 
 
 def reward_terms(errors: dict[str, float], scales: tuple[float, ...]) -> dict[str, float]:
     """{term: exp(-k err)} for the five terms (unweighted, each in (0, 1])."""
-    return {name: float(np.exp(-k * errors[name])) for name, k in zip(TERMS, scales)}
+    values = term_values(np.array([errors[name] for name in TERMS], dtype=np.float64), scales)
+    return {name: float(v) for name, v in zip(TERMS, values)}
 
 
 def weighted_sum(terms: dict[str, float], weights: tuple[float, ...]) -> float:
     """r = sum_i w_i r_i (UniCon eq. 5)."""
-    return float(sum(w * terms[name] for name, w in zip(TERMS, weights)))
+    return float(weighted_sums(np.array([terms[name] for name in TERMS], dtype=np.float64), weights))
+
+
+def terminations(terms: np.ndarray, weights: tuple[float, ...], rule: str, alpha: float,
+                 watch: tuple[str, ...] = TERMS) -> list[str | None]:
+    """`termination` of each state's terms `[N, 5]`."""
+    if rule == "per_term":
+        watched = [TERMS.index(name) for name in watch]
+        below = terms[:, watched] < alpha
+        return [watch[int(np.argmax(row))] if row.any() else None for row in below]
+    if rule == "sum":
+        return ["sum" if s < alpha else None for s in weighted_sums(terms, weights)]
+    if rule == "none":
+        return [None] * len(terms)
+    raise ValueError(f"termination rule {rule!r} is not one of per_term, sum, none")
 
 
 def termination(terms: dict[str, float], weights: tuple[float, ...], rule: str, alpha: float,
@@ -78,13 +147,4 @@ def termination(terms: dict[str, float], weights: tuple[float, ...], rule: str, 
     """Why the episode ends now, or None: "per_term" ends it at the first term of `watch` below
     alpha (returns that term's name; UniCon watches all five), "sum" when the weighted sum is
     below alpha ("sum"), "none" never."""
-    if rule == "per_term":
-        for name in watch:
-            if terms[name] < alpha:
-                return name
-        return None
-    if rule == "sum":
-        return "sum" if weighted_sum(terms, weights) < alpha else None
-    if rule == "none":
-        return None
-    raise ValueError(f"termination rule {rule!r} is not one of per_term, sum, none")
+    return terminations(np.array([[terms[name] for name in TERMS]], dtype=np.float64), weights, rule, alpha, watch)[0]

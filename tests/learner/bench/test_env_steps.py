@@ -1,6 +1,6 @@
-"""`morphmimic bench env-steps` times this tree against a git revision and says whether both
-compute the same trajectories; the environment's hand-written cross product is `np.cross` bit
-for bit."""
+"""`morphmimic bench env-steps` times this tree against a git revision, single and batched
+environments against a pure physics loop, and says whether both compute the same
+trajectories; the environment's hand-written cross product is `np.cross` bit for bit."""
 
 from __future__ import annotations
 
@@ -30,9 +30,12 @@ def _in_a_git_checkout() -> bool:
 def test_against_head_finds_the_same_trajectory(capsys: pytest.CaptureFixture[str]) -> None:
     assert env_steps.main(["--against", "HEAD", "--presets", "executor", "--steps", "40", "--rounds", "1",
                            "--episode-steps", "10"]) == 0
-    row = [line for line in capsys.readouterr().out.splitlines() if line.startswith("executor ")]
-    assert len(row) == 1 and row[0].split()[-1] == "yes", row
-    assert int(row[0].split()[4]) >= 4  # restarted at least every 10 steps: the resets were timed too
+    rows = [line.split() for line in capsys.readouterr().out.splitlines() if line.startswith("executor ")]
+    step, this, other = rows  # the trees' steps; then each tree's against its physics loop
+    assert step[-1] == "yes", rows
+    assert int(step[4]) >= 4  # restarted at least every 10 steps: the resets were timed too
+    assert this[1] == "this" and this[-1] == "yes" and other[1] == "other", rows  # the batch as its environments alone
+    assert float(this[2]) > 0 and float(this[4]) == pytest.approx(float(this[3]) / float(this[2]), rel=0.02)  # printed rounded
 
 
 def test_a_trajectory_digest_changes_with_the_actions() -> None:

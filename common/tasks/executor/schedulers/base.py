@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable, Protocol, Sequence
+from typing import Any, Callable, Protocol, Sequence
 
 import mujoco
 import numpy as np
@@ -120,7 +120,7 @@ class DatasetScheduler:
                  probabilities: np.ndarray | None, dt_s: float, *, speed: float = 1.0, at_end: str = "reschedule",
                  lookback: int = 12, lookahead: int = 2,
                  max_deviation_m: float | None = None, on_deviation: str = "realign", deviation_grace_steps: int = 10,
-                 velocity_window: int = 1):
+                 velocity_window: int = 1, kinematics: Callable[[np.ndarray, np.ndarray], Any] | None = None):
         if isinstance(clips, ClipManager):
             if probabilities is not None or clips.duration_s is None:
                 raise ValueError("DatasetScheduler: give a ClipManager that knows clip durations, and probabilities None")
@@ -145,6 +145,9 @@ class DatasetScheduler:
         if isinstance(velocity_window, bool) or not (isinstance(velocity_window, int) and 1 <= velocity_window <= 30):
             raise ValueError(f"velocity_window {velocity_window!r} must be a whole number of control steps in 1 .. 30")
         self.velocity_window = velocity_window
+        self.kinematics = kinematics
+        self._kin: Any = None
+        self._kin_lo = self._kin_hi = 0
         self.lookback, self.lookahead = int(lookback), int(lookahead)
         self.clip_id = ""
         self._done = False
@@ -182,6 +185,7 @@ class DatasetScheduler:
             self._shift[:2] = align_to[:2] - (yaw_matrix(self._yaw) @ start[0:3])[:2]
         self._q, self._v = place(q, v, self._yaw, self._shift)
         self._row0 = self.lookback + 1
+        self._kin, self._kin_lo, self._kin_hi = None, 0, 0
 
     CHUNK_ROWS = 64
     """Rows of the schedule sampled at a time: `begin` samples the first ones, `frame` the next
@@ -199,13 +203,38 @@ class DatasetScheduler:
         v = self._motion.qvel_at(times, self.velocity_window * self.dt * self.speed) * self.speed
         return q, v
 
-    def frame(self, i: int) -> TargetFrame:
+    KINEMATICS_ROWS = 16
+    """Rows of the schedule whose `kinematics` are computed at a time (`kinematics_at`)."""
+
+    def row(self, i: int) -> int:
+        """The schedule row of the frame i control steps from now (sampled if it was not yet)."""
         # NOTE: min/max on the int, not np.clip: a scalar np.clip cost 10 us, a tenth of the executor's step
         row = min(max(self._row0 + self.k + int(i), 0), self._rows - 1)
         if row >= len(self._q):
             q, v = place(*self._sample(len(self._q), min(self._rows, row + 1 + self.CHUNK_ROWS)), self._yaw, self._shift)
             self._q, self._v = np.concatenate([self._q, q]), np.concatenate([self._v, v])
+        return row
+
+    def frame(self, i: int) -> TargetFrame:
+        row = self.row(i)
         return TargetFrame(self._q[row], self._v[row])
+
+    def kinematics_at(self, offsets: Sequence[int]) -> Any:
+        """`kinematics(qpos [R, nq], qvel [R, nv])` (the callable given at construction, e.g. the
+        executor's body kinematics of each frame) of the frames `offsets` control steps from now,
+        indexed out of a table of `KINEMATICS_ROWS` schedule rows computed at once when a frame
+        outside it is asked for (a step asks for the next rows in turn, so each row is computed
+        once per schedule). The table holds what `kinematics` gives each frame alone."""
+        if self.kinematics is None:
+            raise ValueError("this DatasetScheduler was built without a kinematics function")
+        rows = np.array([self.row(i) for i in offsets])
+        lo, hi = int(rows.min()), int(rows.max()) + 1
+        if lo < self._kin_lo or hi > self._kin_hi:
+            hi = min(self._rows, max(hi, lo + self.KINEMATICS_ROWS))
+            self.row(hi - 1 - self._row0 - self.k)
+            self._kin = self.kinematics(self._q[lo:hi], self._v[lo:hi])
+            self._kin_lo, self._kin_hi = lo, hi
+        return self._kin[rows - self._kin_lo]
 
     def advance(self, rng: np.random.Generator, qpos: np.ndarray) -> bool:
         self.k += 1

@@ -1,0 +1,69 @@
+"""`ExecutorBatch` against N separate `ExecutorEnv`s: the same seeds, reset calls (named and
+drawn clips), random actions and resets on ends and by force give the same observations,
+rewards, ends, clip ids, end reasons and drained clip segments, bit for bit, for the torque
+("executor") and PD ("executor-pd") presets; and the registry builds it for the executor."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from common.tasks.executor.batch import ExecutorBatch
+from common.tasks.executor.env import ExecutorEnv
+from common.tasks.registry import make_batch_env
+from learner.presets import PRESETS
+
+SEEDS = [3, 11, 12, 40]
+
+
+def task(preset: str):
+    cfg = PRESETS[preset][1].task
+    return dataclasses.replace(cfg, episode_s=2.0)  # time limits too, within the test's steps
+
+
+@pytest.mark.parametrize("preset", ["executor", "executor-pd"])
+def test_batch_steps_as_its_environments_alone(preset: str) -> None:
+    cfg = task(preset)
+    batch = ExecutorBatch(cfg, SEEDS)
+    alone = [ExecutorEnv(cfg, s) for s in SEEDS]
+    clips = [c for c, _ in alone[0].clip_list[:3]]
+    params = batch.space.default_array
+    rng = np.random.default_rng(7)
+    plan = np.random.default_rng(8)
+
+    def reset(i: int, seed: int | None) -> None:
+        clip = clips[int(plan.integers(len(clips)))] if plan.random() < 0.5 else None
+        got = batch.reset_one(i, seed, params, clip)
+        want, info = alone[i].reset(seed, params, clip)
+        assert np.array_equal(got, want)
+        assert batch.envs[i].scheduler.clip_id == info["clip_id"]
+
+    for i, s in enumerate(SEEDS):
+        reset(i, s + 100)
+    ends = rescheduled = 0
+    for t in range(300):
+        actions = rng.normal(0.0, 0.5, (len(SEEDS), batch.act_dim)).astype(np.float32)
+        if t == 50:
+            actions[1, 0] = np.nan  # the non-finite check
+        obs, rewards, terminated, truncated, infos = batch.step(actions)
+        for i, env in enumerate(alone):
+            o, r, term, trunc, info = env.step(actions[i])
+            assert np.array_equal(obs[i], o), (t, i)
+            assert rewards[i] == r and terminated[i] == term and truncated[i] == trunc, (t, i)
+            assert infos[i]["ended_by"] == info["ended_by"] and infos[i].get("clip_id") == info.get("clip_id")
+            assert infos[i] == info, (t, i)
+            rescheduled += bool(info.get("rescheduled"))
+            if term or trunc or plan.random() < 0.01:
+                ends += 1
+                reset(i, None if plan.random() < 0.7 else int(plan.integers(1000)))
+        if t % 50 == 49:
+            assert batch.drain_segments() == [seg for env in alone for seg in env.drain_segments()]
+    assert ends >= 8 and rescheduled >= 1
+
+
+def test_registry_builds_the_executor_batch() -> None:
+    batch = make_batch_env(task("executor"), [0, 1])
+    assert isinstance(batch, ExecutorBatch) and batch.n == 2
+    assert batch.envs[1].model is batch.envs[0].model and batch.envs[1].data is not batch.envs[0].data
