@@ -25,7 +25,7 @@ from common.motion.clip import Clip
 from common.motion.kinematics import sample
 from common.motion.reference import CharacterMotion
 from common.motion.retarget import ContactPhases, RetargetConfig, contact_phases, play_on
-from common.tasks.observations import JointLayout, heading, quat_to_mat, yaw_matrix
+from common.tasks.observations import JointLayout
 
 DEFAULT_CLIPS = {
     "lower_biped": "mass/walk",
@@ -117,8 +117,8 @@ class GridReference:
     Columns of `rows` `[T, width]` (`column(name)`): "q" qpos `[nq]` (heading and speed applied
     by `sample`), "j" the joint vector `[nu]` (`JointLayout.to_vector`), "qvel" `[nv]` the
     centred difference `mj_differentiatePos` of rows r - 1 and r + 1 over 2 dt, "ee" the end
-    effectors `[3E]` relative to the reference root in its heading frame (MuJoCo forward
-    kinematics of the row, `CharacterMotion.positions`), "facing" `[2]` the horizontal facing
+    effectors `[3E]` relative to the reference root in its heading frame (`mj_kinematics` of the
+    row on the motion's own MjData, as `CharacterMotion.positions`), "facing" `[2]` the horizontal facing
     of the root (first column of its heading frame) and "rmat" the root orientation `[9]`
     (row-major rotation matrix). "qvel" of a row is there once row r + 1 is.
     """
@@ -151,14 +151,23 @@ class GridReference:
         new = np.zeros((stop - start, self.width))
         new[:, self.slices["q"]] = q
         new[:, self.slices["j"]] = self.layout.to_vector(q)
-        ee, facing, rmat = self.slices["ee"], self.slices["facing"], self.slices["rmat"]
-        for qpos, row in zip(q, new):
-            body_pos, _ = self.motion.positions(qpos)
-            rot = quat_to_mat(qpos[3:7])
-            frame = yaw_matrix(heading(rot))
-            row[ee] = ((body_pos[self.ee_ids] - qpos[0:3]) @ frame).reshape(-1)
-            row[facing] = frame[:2, 0]
-            row[rmat] = rot.reshape(-1)
+        # The end effectors by forward kinematics row by row (`CharacterMotion.positions`), the
+        # rest as arrays over the chunk: the same float operations as `quat_to_mat`, `heading`
+        # and `yaw_matrix` on each row.
+        rot = new[:, self.slices["rmat"]]
+        body = np.zeros((len(q), len(self.ee_ids), 3))
+        model, data = self.motion.model, self.motion.data
+        for r, qpos in enumerate(q):
+            mujoco.mju_quat2Mat(rot[r], qpos[3:7])
+            data.qpos[:] = qpos
+            mujoco.mj_kinematics(model, data)
+            body[r] = data.xpos[self.ee_ids]
+        yaw = np.arctan2(rot[:, 3], rot[:, 0])
+        c, s = np.cos(yaw), np.sin(yaw)
+        frame = np.zeros((len(q), 3, 3))
+        frame[:, 0, 0], frame[:, 0, 1], frame[:, 1, 0], frame[:, 1, 1], frame[:, 2, 2] = c, -s, s, c, 1.0
+        new[:, self.slices["ee"]] = np.matmul(body - q[:, None, 0:3], frame).reshape(len(q), -1)
+        new[:, self.slices["facing"]] = frame[:, :2, 0]
         self.rows = np.concatenate([self.rows, new]) if start else new
         qs, qv = self.column("q"), self.column("qvel")
         for r in range(max(1, start - 1), stop - 1):
