@@ -33,7 +33,8 @@ class TaskEntry:
 
 TASKS: dict[str, TaskEntry] = {
     "reach": TaskEntry("common.tasks.reach:ReachEnv", "reach", ("train",)),
-    **{name: TaskEntry("common.tasks.shape.env:ImitateEnv", "shape", SHAPE_COMMANDS)
+    **{name: TaskEntry("common.tasks.shape.env:ImitateEnv", "shape", SHAPE_COMMANDS,
+                       batch="common.tasks.shape.batch:ShapeBatch")
        for name in ("lower_biped", "biped", "quadruped", "fish", "manta")},
     "executor": TaskEntry("common.tasks.executor.env:ExecutorEnv", "executor", EXECUTOR_COMMANDS,
                           batch="common.tasks.executor.batch:ExecutorBatch"),

@@ -208,38 +208,21 @@ class ImitateEnv:
         return q
 
     def _grid(self, k: int) -> int:
-        """Row of control step k in the reference table, extending the table as needed.
-
-        NOTE: the reference is sampled once per control step on the grid t = k dt (vectorized,
-        in chunks) rather than per call: clip slerps in Python cost more than the physics.
-        """
+        """Row of control step k in the episode's reference table (`references.GridReference`:
+        the reference sampled once per control step on the grid t = k dt, with what the state
+        and the reward read from it), extending the table as needed."""
         row = k + 1  # row 0 is step -1, for the centred velocity at step 0
-        need = row + self._look[-1] + 2
-        if need > len(self._tab_q):
-            start = len(self._tab_q)
-            stop = max(need, start + REF_CHUNK_STEPS)
-            q = self._ref_qpos((np.arange(start, stop) - 1) * self.dt)
-            self._tab_q = np.concatenate([self._tab_q, q]) if start else q
-            j = self.layout.to_vector(q)
-            self._tab_j = np.concatenate([self._tab_j, j]) if start else j
+        self.ref.ensure(row + self._look[-1] + 2)
         return row
 
     def _clear_table(self) -> None:
-        self._tab_q = np.zeros((0, self.model.nq))
-        self._tab_j = np.zeros((0, self.model.nu))
+        """A new reference table for the episode's reference (motion, heading, speed, offset)."""
+        self.ref = references.GridReference(self._ref_qpos, self.motion, self.model, self.layout, self.ee_ids, self.dt,
+                                            REF_CHUNK_STEPS)
 
     def _ref_qvel(self, k: int) -> np.ndarray:
         """Reference qvel `[nv]` at step k: centred difference of the table over 2 dt."""
-        row = self._grid(k)
-        v = np.zeros(self.model.nv)
-        mujoco.mj_differentiatePos(self.model, v, 2.0 * self.dt, self._tab_q[row - 1], self._tab_q[row + 1])
-        return v
-
-    def _ref_ee(self, qpos: np.ndarray) -> np.ndarray:
-        """Reference end effectors `[E, 3]` relative to the reference root, in its heading frame."""
-        body_pos, _ = self.motion.positions(qpos)
-        frame = yaw_matrix(heading(quat_to_mat(qpos[3:7])))
-        return (body_pos[self.ee_ids] - qpos[0:3]) @ frame
+        return self.ref.column("qvel")[self._grid(k)]
 
     # ---- the Env contract ----
 
@@ -267,7 +250,7 @@ class ImitateEnv:
         self.data = mujoco.MjData(self.model)
         self._clear_table()
         row = self._grid(0)
-        self.data.qpos[:] = self._tab_q[row]
+        self.data.qpos[:] = self.ref.column("q")[row]
         self.data.qvel[:] = self._ref_qvel(0)
         if not self.character.is_swimmer:
             from common.characters.morph import lift_out_of_floor
@@ -281,9 +264,10 @@ class ImitateEnv:
 
     def _refresh_reference(self) -> None:
         row = self._grid(self.k)
-        rows = [row, row + 1, *(row + n for n in self._look[1:])]
-        self.ref_q = self._tab_q[rows]
-        self.ref_joints = self._tab_j[rows]
+        self.ref_rows = [row, row + 1, *(row + n for n in self._look[1:])]
+        """Table rows of the reference now, one step ahead (the PD target) and at the lookaheads."""
+        self.ref_q = self.ref.column("q")[self.ref_rows]
+        self.ref_joints = self.ref.column("j")[self.ref_rows]
 
     def target_velocity(self) -> np.ndarray:
         """v_target `[2]` m/s in the world: the clip's cycle velocity, scaled by speed, by the
@@ -315,8 +299,9 @@ class ImitateEnv:
         # call the current COM velocity read zero on every step.
         mujoco.mj_subtreeVel(self.model, d)
         refs = []
+        rmat = self.ref.column("rmat")
         for row, qref in zip((0, 2, 3), (self.ref_q[0], self.ref_q[2], self.ref_q[3])):
-            rot = frame.T @ quat_to_mat(qref[3:7])
+            rot = frame.T @ rmat[self.ref_rows[row]].reshape(3, 3)
             refs.append(np.concatenate([self.ref_joints[row], [qref[2]], rot[:, 0], rot[:, 1]]))
         v_target = frame[:2, :2].T @ self.target_velocity()
         v_avg = frame[:2, :2].T @ self.com_velocity_avg()
@@ -330,17 +315,17 @@ class ImitateEnv:
 
     def reward_terms(self, body_frame: tuple[np.ndarray, np.ndarray] | None = None) -> dict[str, float]:
         """The six weighted terms at the current state against the reference at the same time."""
-        d, qref = self.data, self.ref_q[0]
+        d, qref, row = self.data, self.ref_q[0], self.ref_rows[0]
         balls = np.concatenate([[d.qpos[3:7]], d.qpos[self.layout.ball_qpos]])
         balls_ref = np.concatenate([[qref[3:7]], qref[self.layout.ball_qpos]])
         frame, ee = body_frame or self._body_frame()
         norm = self.norm if self.cfg.imitate.reward_normalization else None
         facing = frame[:2, 0]
-        facing_ref = yaw_matrix(heading(quat_to_mat(qref[3:7])))[:2, 0]
+        facing_ref = self.ref.column("facing")[row]
         errors = {
             "pose": rewards.pose_error(balls, balls_ref, d.qpos[self.layout.hinge_qpos], qref[self.layout.hinge_qpos]),
-            "velocity": rewards.mean_sq(d.qvel[6:] - self._ref_qvel(self.k)[6:]),
-            "end_effector": rewards.end_effector_error(ee, self._ref_ee(qref)),
+            "velocity": rewards.mean_sq(d.qvel[6:] - self.ref.column("qvel")[row][6:]),
+            "end_effector": rewards.end_effector_error(ee, self.ref.column("ee")[row].reshape(-1, 3)),
             "com_velocity": rewards.mean_sq(self.com_velocity_avg() - self.target_velocity()),
             "direction": rewards.direction_error(facing, facing_ref, norm),
             "torque": rewards.torque_error(d.actuator_force, self.tau_scale, norm),
@@ -380,10 +365,14 @@ class ImitateEnv:
         reference's direction of travel removed (`off_course_m` is its length; with
         `observe_course` the policy sees it in its heading frame, in body lengths)."""
         offset = self.data.qpos[0:3] - self.ref_q[0][0:3]
+        along = self.course_direction()
+        return offset - (offset @ along) * along
+
+    def course_direction(self) -> np.ndarray:
+        """`[3]` unit horizontal direction of the reference's travel in the world this episode."""
         v = self.rot[:2, :2] @ self.v0
         n = float(np.linalg.norm(v))
-        along = np.array([v[0] / n, v[1] / n, 0.0]) if n > 1e-9 else self.rot[:, 0]
-        return offset - (offset @ along) * along
+        return np.array([v[0] / n, v[1] / n, 0.0]) if n > 1e-9 else self.rot[:, 0]
 
     def paper_fell(self) -> bool:
         """Won & Lee 2019's fall: a walker's floor contact of any body other than the feet (the

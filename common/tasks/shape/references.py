@@ -14,7 +14,9 @@ cheap to retarget, and played on a shaped character (issue 4's retargeting).
 from __future__ import annotations
 
 import functools
+from typing import Callable
 
+import mujoco
 import numpy as np
 
 from common.characters import base_character
@@ -23,6 +25,7 @@ from common.motion.clip import Clip
 from common.motion.kinematics import sample
 from common.motion.reference import CharacterMotion
 from common.motion.retarget import ContactPhases, RetargetConfig, contact_phases, play_on
+from common.tasks.observations import JointLayout
 
 DEFAULT_CLIPS = {
     "lower_biped": "mass/walk",
@@ -102,3 +105,70 @@ def play(character, clip_id: str, timestep_s: float, retarget: RetargetConfig = 
 def cycle_velocity(clip: Clip) -> np.ndarray:
     """Mean horizontal root velocity `[2]` m/s of one cycle of the clip (on its base body)."""
     return (clip.root_pos[-1, :2] - clip.root_pos[0, :2]) / max(clip.duration_s, 1e-9)
+
+
+class GridReference:
+    """One episode's reference on its control grid: row r holds the reference at episode time
+    (r - 1) dt (row 0 is step -1, for the centred velocity at step 0), everything the state,
+    the reward, the termination and the PD target of Won & Lee 2019 (METHOD.md A) read from it,
+    computed once per row. The rows are filled `chunk` at a time as the episode reaches them
+    (episodes often end long before the horizon early in training).
+
+    Columns of `rows` `[T, width]` (`column(name)`): "q" qpos `[nq]` (heading and speed applied
+    by `sample`), "j" the joint vector `[nu]` (`JointLayout.to_vector`), "qvel" `[nv]` the
+    centred difference `mj_differentiatePos` of rows r - 1 and r + 1 over 2 dt, "ee" the end
+    effectors `[3E]` relative to the reference root in its heading frame (`mj_kinematics` of the
+    row on the motion's own MjData, as `CharacterMotion.positions`), "facing" `[2]` the horizontal facing
+    of the root (first column of its heading frame) and "rmat" the root orientation `[9]`
+    (row-major rotation matrix). "qvel" of a row is there once row r + 1 is.
+    """
+
+    def __init__(self, sample: Callable[[np.ndarray], np.ndarray], motion: CharacterMotion, model: mujoco.MjModel,
+                 layout: JointLayout, ee_ids: np.ndarray, dt_s: float, chunk: int):
+        self.sample, self.motion, self.model, self.layout = sample, motion, model, layout
+        self.ee_ids, self.dt, self.chunk = ee_ids, dt_s, chunk
+        sizes = {"q": model.nq, "j": model.nu, "qvel": model.nv, "ee": 3 * len(ee_ids), "facing": 2, "rmat": 9}
+        self.slices: dict[str, slice] = {}
+        start = 0
+        for name, size in sizes.items():
+            self.slices[name] = slice(start, start + size)
+            start += size
+        self.width = start
+        self.rows = np.zeros((0, self.width))
+        """`[T, width]` the rows filled so far."""
+
+    def column(self, name: str) -> np.ndarray:
+        """The rows filled so far of one column `[T, size]` (a view)."""
+        return self.rows[:, self.slices[name]]
+
+    def ensure(self, need: int) -> None:
+        """Fill rows up to at least `need` (exclusive), a chunk at a time."""
+        start = len(self.rows)
+        if need <= start:
+            return
+        stop = max(need, start + self.chunk)
+        q = self.sample((np.arange(start, stop) - 1) * self.dt)
+        new = np.zeros((stop - start, self.width))
+        new[:, self.slices["q"]] = q
+        new[:, self.slices["j"]] = self.layout.to_vector(q)
+        # The end effectors by forward kinematics row by row (`CharacterMotion.positions`), the
+        # rest as arrays over the chunk: the same float operations as `quat_to_mat`, `heading`
+        # and `yaw_matrix` on each row.
+        rot = new[:, self.slices["rmat"]]
+        body = np.zeros((len(q), len(self.ee_ids), 3))
+        model, data = self.motion.model, self.motion.data
+        for r, qpos in enumerate(q):
+            mujoco.mju_quat2Mat(rot[r], qpos[3:7])
+            data.qpos[:] = qpos
+            mujoco.mj_kinematics(model, data)
+            body[r] = data.xpos[self.ee_ids]
+        yaw = np.arctan2(rot[:, 3], rot[:, 0])
+        c, s = np.cos(yaw), np.sin(yaw)
+        frame = np.zeros((len(q), 3, 3))
+        frame[:, 0, 0], frame[:, 0, 1], frame[:, 1, 0], frame[:, 1, 1], frame[:, 2, 2] = c, -s, s, c, 1.0
+        new[:, self.slices["ee"]] = np.matmul(body - q[:, None, 0:3], frame).reshape(len(q), -1)
+        new[:, self.slices["facing"]] = frame[:, :2, 0]
+        self.rows = np.concatenate([self.rows, new]) if start else new
+        qs, qv = self.column("q"), self.column("qvel")
+        for r in range(max(1, start - 1), stop - 1):
+            mujoco.mj_differentiatePos(self.model, qv[r], 2.0 * self.dt, qs[r - 1], qs[r + 1])
