@@ -2,7 +2,7 @@
 N single `ImitateEnv`s stepped one after another (what a `LoopBatch` does) and the pure physics
 of the same N models (`mj_step` x substeps, nothing else).
 
-`python -m learner.bench.shape_batch [--presets lower_biped,fish] [--n 8] [--steps 600] [--rounds 4]`
+`morphmimic bench shape-batch [--presets lower_biped,fish] [--n 8] [--steps 600] [--rounds 4]`
 
 Each round builds the batch and N single environments with the same seeds, resets them on the
 same random shapes, then times `--steps` control steps of each way on the same seeded actions
@@ -14,16 +14,19 @@ batch / physics, loop / physics and loop / batch.
 
 from __future__ import annotations
 
-import argparse
 import statistics
 import time
+from dataclasses import dataclass
+from typing import ClassVar
 
 import mujoco
 import numpy as np
 
+from common.config_limits import Limit, at_least, check_limits, validated
 from common.tasks.shape.batch import ShapeBatch
 from common.tasks.shape.env import ImitateEnv
-from common.tasks.shape.presets import shape_task
+from common.tasks.shape.presets import SHAPE_TASKS, shape_task
+from learner.cli_options import CommaStrs, parse_options
 
 
 def _time_batch(batch: ShapeBatch, actions: np.ndarray, shapes: np.ndarray) -> float:
@@ -79,14 +82,31 @@ def bench(preset: str, n: int, steps: int, round_: int) -> dict[str, float]:
     return {name: ways[name]() for name in order}
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--presets", default="lower_biped,fish")
-    parser.add_argument("--n", type=int, default=8)
-    parser.add_argument("--steps", type=int, default=600)
-    parser.add_argument("--rounds", type=int, default=4)
-    args = parser.parse_args()
-    for preset in args.presets.split(","):
+@validated
+@dataclass
+class ShapeBatchBenchOptions:
+    presets: CommaStrs = ("lower_biped", "fish")
+    """Comma-separated shape tasks."""
+    n: int = 8
+    """Environments per batch (the shape presets' envs_per_actor is 8)."""
+    steps: int = 600
+    """Control steps timed per way and round."""
+    rounds: int = 4
+    """Rounds per preset (the order of the three ways alternates)."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {"n": at_least(1), "steps": at_least(1), "rounds": at_least(1)}
+    FLAG_PREFIX: ClassVar[str] = ""
+
+    def validate(self) -> None:
+        unknown = [t for t in self.presets if t not in SHAPE_TASKS]
+        if unknown:
+            raise ValueError(f"unknown shape task(s) {unknown}; choose from {', '.join(SHAPE_TASKS)}")
+        check_limits(self)
+
+
+def main(argv: list[str]) -> int:
+    args = parse_options(ShapeBatchBenchOptions, argv, prog="morphmimic bench shape-batch", description=__doc__.split("\n\n")[0])
+    for preset in args.presets:
         runs = [bench(preset, args.n, args.steps, r) for r in range(args.rounds)]
         ms = {k: 1e3 * statistics.median(run[k] for run in runs) for k in runs[0]}
         ratio = {k: statistics.median(run[a] / run[b] for run in runs)
@@ -94,7 +114,4 @@ def main() -> None:
                                    "loop/batch": ("loop", "batch")}.items()}
         print(f"{preset} N={args.n}: ms per step batch {ms['batch']:.2f} loop {ms['loop']:.2f} physics {ms['physics']:.2f}; "
               + ", ".join(f"{k} {v:.2f}" for k, v in ratio.items()))
-
-
-if __name__ == "__main__":
-    main()
+    return 0
