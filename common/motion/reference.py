@@ -42,9 +42,10 @@ class ReferenceState:
     com_vel: np.ndarray
 
 
-def model_clip(clip: Clip, model: mujoco.MjModel, qpos: np.ndarray) -> Clip:
+def model_clip(clip: Clip, model: mujoco.MjModel, qpos: np.ndarray, fps: float | None = None) -> Clip:
     """Wrap qpos frames (T, nq) of `model` as a Clip whose joints are the model's own
-    (identity rest frames), so `kinematics.sample` interpolates them directly."""
+    (identity rest frames), so `kinematics.sample` interpolates them directly; at `fps` (the
+    clip's own rate when None: frames resampled by `clean.filter_qpos` have another)."""
     names, types = [], []
     for j in range(1, model.njnt):
         kind = int(model.jnt_type[j])
@@ -55,7 +56,7 @@ def model_clip(clip: Clip, model: mujoco.MjModel, qpos: np.ndarray) -> Clip:
         else:
             raise ValueError(f"joint {model.joint(j).name!r}: only the first joint may be free")
         names.append(model.joint(j).name)
-    return Clip(name=clip.name, fps=clip.fps, root_pos=qpos[:, 0:3], root_quat=qpos[:, 3:7], joint_names=tuple(names),
+    return Clip(name=clip.name, fps=clip.fps if fps is None else float(fps), root_pos=qpos[:, 0:3], root_quat=qpos[:, 3:7], joint_names=tuple(names),
                 joint_types=tuple(types), joint_qpos=qpos[:, 7:], hinge_axes=np.zeros((len(names), 3)), loop=clip.loop,
                 label=clip.label, character=clip.character, source=clip.source, license=clip.license, extra=clip.extra)
 
@@ -66,12 +67,15 @@ class CharacterMotion:
     NOTE: holds one MjData for its own kinematics; not thread-safe, make one per environment.
     """
 
-    def __init__(self, clip: Clip, model: mujoco.MjModel, qpos_frames: np.ndarray, end_effector_bodies: tuple[str, ...] = ()) -> None:
+    def __init__(self, clip: Clip, model: mujoco.MjModel, qpos_frames: np.ndarray, end_effector_bodies: tuple[str, ...] = (),
+                 fps: float | None = None) -> None:
+        """`qpos_frames` `[T, nq]` uniform in time at `fps` (the clip's own rate when None); `clip`
+        gives the name, label and loop flag."""
         if model.jnt_qposadr[0] != 0 or model.jnt_type[0] != mujoco.mjtJoint.mjJNT_FREE:
             raise ValueError("the character's first joint must be the free root at qpos[0:7]")
         self.clip = clip
         self.model = model
-        self.frames = model_clip(clip, model, qpos_frames)
+        self.frames = model_clip(clip, model, qpos_frames, fps)
         self.data = mujoco.MjData(model)
         self.end_effector_bodies = tuple(end_effector_bodies)
         self._ee_ids = np.array([model.body(b).id for b in end_effector_bodies], dtype=np.int64)

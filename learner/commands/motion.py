@@ -126,6 +126,14 @@ class CheckOptions(_OnACharacter):
     root_height: RootHeightRule | None = None
     """Root-height rule of the retargeting (default: the library's, contact_set; foot_tracks for
     clips retargeted across skeletons)."""
+    filter_hz: float = 7.0
+    """Cut-off (Hz) of the cleaning the second line per clip reports after (the executor's
+    `reference_filter_hz`; 0: no filter)."""
+    floor: bool = True
+    """The cleaning the second line reports after lifts every frame out of the floor (the
+    executor's `reference_floor`)."""
+
+    LIMITS: ClassVar[dict[str, Limit]] = {**_OnACharacter.LIMITS, "filter_hz": at_least(0, False)}
 
 
 def _resolve(lib, spec: str, character: str | None = None):
@@ -228,6 +236,32 @@ def _raw_clip(clip):
     return naive_clip(path, skeleton=skeleton, character=clip.character)
 
 
+CONTROL_HZ = 60.0
+"""The executor's control rate: the grid `cleaning_line` measures a clip on."""
+EXECUTOR_CHARACTER = "humanoid"
+"""The character the executor tracks clips on: `check` adds `cleaning_line` for its clips."""
+
+
+def cleaning_line(clip, model, filter_hz: float, floor: bool) -> str:
+    """The clip as the executor tracks it (played as recorded on `model`, once through), before
+    and after its cleaning (`common.motion.clean`: filter at `filter_hz`, `floor`), on the
+    executor's 60 Hz control grid: share of steps with a DOF outside its PD target range (and
+    outside the MimicKit/PHC widened one), the largest one-step change of the target joint
+    velocities against the joint-velocity term's tolerance and the share of steps above it, and
+    the lowest geom's height (median, worst, share of steps below the floor)."""
+    from common.motion.clean import clean_motion, reference_stats
+    from common.motion.reference import CharacterMotion
+    from common.tasks.executor.config import ExecutorConfig
+
+    ex = ExecutorConfig()
+    tolerance = float(np.log(1.0 / ex.alpha) / ex.reward_scales[4])
+    raw = CharacterMotion.from_clip(clip.with_(loop=False), model)
+    clean = clean_motion(raw, filter_hz, floor)
+    what = ", ".join([f"filter {filter_hz:g} Hz"] * bool(filter_hz) + ["floor"] * floor) or "nothing"
+    return (f"{'':<2}executor reference at {CONTROL_HZ:g} Hz: raw {reference_stats(raw, 1 / CONTROL_HZ, tolerance).line()}\n"
+            f"{'':<2}cleaned ({what}){'':<8} {reference_stats(clean, 1 / CONTROL_HZ, tolerance).line()}")
+
+
 def cmd_check(args) -> int:
     from common.motion.check import check_motion
     from common.motion.library import MotionLibrary
@@ -244,7 +278,11 @@ def cmd_check(args) -> int:
     print("clip, character, rate, length; feet: deepest below floor (pen), lower foot above it in contact phases "
           "(float), lower foot above it over every frame (low: max, mean), as recorded (for a clip retargeted across "
           "skeletons: its source copied naively) -> retargeted; frames with both feet up; the retargeted root height's "
-          "range over the clip and largest step between frames; (frame, DOF) pairs outside the joint range")
+          "range over the clip and largest step between frames; (frame, DOF) pairs outside the joint range. Then, for a "
+          "humanoid clip, the clip as the executor tracks it, raw and cleaned: steps with a DOF outside its PD target "
+          "range (widened: as MimicKit/PHC), the largest one-step change of the target joint velocities ((rad/s)^2, against the "
+          "joint-velocity term's tolerance) and the share of steps above it, the lowest geom's height (median, worst, "
+          "share of steps below the floor)")
     for spec in specs:
         try:
             clip = _resolve(lib, spec, args.character)
@@ -261,6 +299,8 @@ def cmd_check(args) -> int:
             raw_flags = flags if raw_clip.num_frames == clip.num_frames else None
             raw = check_motion(CharacterMotion.from_clip(raw_clip, ch.model), feet, raw_flags)
             print(check_motion(motion, feet, flags).line(raw))
+            if preset == EXECUTOR_CHARACTER:
+                print(cleaning_line(clip, ch.model, args.filter_hz, args.floor))
         except ClipError as exc:
             failed += 1
             print(f"{spec:<26} ERROR {exc}")
@@ -270,7 +310,8 @@ def cmd_check(args) -> int:
 SUBCOMMANDS = {
     "import": (ImportOptions, cmd_import, "convert DeepMimic JSON / BVH to canonical .npz clips"),
     "view": (ViewOptions, cmd_view, "render a clip kinematically to a PNG strip (.png) or animation (.gif/.mp4)"),
-    "check": (CheckOptions, cmd_check, "per clip: feet vs floor, joint-range violations, rate, length"),
+    "check": (CheckOptions, cmd_check, "per clip: feet vs floor, joint-range violations, rate, length; the executor's "
+                                       "reference before and after cleaning"),
 }
 
 

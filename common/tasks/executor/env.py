@@ -41,6 +41,7 @@ import numpy as np
 from common.characters import base_character, load_character
 from common.characters.mass import scale_body_mass
 from common.characters.morph import lift_out_of_floor
+from common.motion.clean import clean_motion, widen_ranges
 from common.motion.clip_manager import ClipManager
 from common.motion.library import MotionLibrary
 from common.motion.manifest import Manifest, load_manifest, unicon_split, unicon_take_split
@@ -289,7 +290,8 @@ class ExecutorEnv:
 
     def _compile(self, ch) -> mujoco.MjModel:
         """The simulated model: the character with the configured armatures, projectile balls and
-        actuation (torque: motors with effort factors and passive damping; pd: the builder's PD)."""
+        actuation (torque: motors with effort factors and passive damping; pd: the builder's PD,
+        its target ranges widened as MimicKit and PHC do with `pd_target_range = "widened"`)."""
         spec = ch.spec.copy()
         if self.ex.projectile:
             for i in range(PROJECTILES):
@@ -301,6 +303,8 @@ class ExecutorEnv:
         for part in ("shoulder", "elbow"):
             set_armature(spec, part, self.ex.arm_armature)
         model = spec.compile()
+        if self.ex.actuation == "pd" and self.ex.pd_target_range == "widened":
+            model.actuator_ctrlrange[:] = widen_ranges(model)
         if self.ex.actuation == "torque":
             torque_actuation(model, effort_factors(model, float(ch.mass_kg), self.ex.effort_scale))
             passive_damping(model, self.ex.passive_damping)
@@ -312,8 +316,13 @@ class ExecutorEnv:
             # anyway, and most "looping" mocap does not close (humanoid3d_walk's shoulders turn
             # 0.5 rad across its seam), so a wrap put 14 rad/s spikes into the target velocities.
             clip = self.library.clip(clip_id).with_(loop=False)
-            self._motions[clip_id] = CharacterMotion.from_clip(clip, self.ref_model)
+            self._motions[clip_id] = self._prepare(CharacterMotion.from_clip(clip, self.ref_model))
         return self._motions[clip_id]
+
+    def _prepare(self, motion: CharacterMotion) -> CharacterMotion:
+        """A clip as the executor tracks it, cleaned once (`ExecutorConfig.reference_filter_hz`,
+        `reference_floor`; `common.motion.clean.clean_motion`): the same motion when both are off."""
+        return clean_motion(motion, self.ex.reference_filter_hz, self.ex.reference_floor)
 
     def register_clip(self, clip_id: str, clip) -> None:
         """Make a clip that is not in the task's set trackable by name (`reset(..., clip_id)`),
@@ -324,7 +333,7 @@ class ExecutorEnv:
         if clip.character and clip.character != CHARACTER:
             raise ClipError(f"clip is for the {clip.character!r} character, not {CHARACTER!r}; import it onto the "
                             "humanoid first (morphmimic motion import ... --character humanoid)", path=clip_id)
-        self._motions[clip_id] = CharacterMotion.from_clip(clip.with_(loop=False), self.ref_model)
+        self._motions[clip_id] = self._prepare(CharacterMotion.from_clip(clip.with_(loop=False), self.ref_model))
         if hasattr(self.scheduler, "extra_ids"):
             self.scheduler.extra_ids.add(clip_id)
 

@@ -28,7 +28,9 @@ def test_cli_import_then_check(tmp_path, capsys):
     assert out.exists() and "25 frames" in capsys.readouterr().out
     assert cli.main(["check", str(out), "humanoid3d_walk", "--random-shape", "1"]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert len(lines) == 3 and "humanoid3d_walk" in lines[2] and "pen" in lines[2]
+    # per clip: the feet line, then the executor's reference raw and cleaned
+    assert len(lines) == 7 and "humanoid3d_walk" in lines[4] and "pen" in lines[4]
+    assert "raw limits" in lines[5] and "vel jump max" in lines[6] and "cleaned (filter 7 Hz, floor)" in lines[6]
 
 
 def test_cli_reports_bad_files(tmp_path, capsys):
@@ -73,7 +75,7 @@ def test_check_reports_the_root_bob_and_each_root_height_rule(capsys):
 
 def test_cli_checks_a_mirror_image_by_id(capsys):
     assert cli.main(["check", "humanoid3d_kick", "humanoid3d_kick~mirror"]) == 0
-    plain, mirrored = capsys.readouterr().out.splitlines()[1:]
+    plain, mirrored = [line for line in capsys.readouterr().out.splitlines()[1:] if not line.startswith("  ")]
     # the kick's one hip over its joint range moves to the other side; the foot figures stay
     assert "right_hip.z" in plain and "left_hip.z" in mirrored
     assert plain.split("raw")[1].split("limits")[0] == mirrored.split("raw")[1].split("limits")[0]

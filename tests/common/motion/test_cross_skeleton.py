@@ -295,7 +295,7 @@ def test_manifest_validates_the_retargeting_fields(tmp_path, fields, words):
 
 def test_check_shows_naive_then_retargeted_feet_over_every_frame(capsys):
     assert cli.main(["check", "humanoid/mass_walk", "mass/walk"]) == 0
-    lines = capsys.readouterr().out.splitlines()
+    lines = [line for line in capsys.readouterr().out.splitlines() if not line.startswith("  ")]  # not the cleaning lines
     assert len(lines) == 3 and "over every frame" in lines[0]
     walk = lines[1]
     assert walk.startswith("humanoid/mass_walk") and "raw pen" in walk
