@@ -217,12 +217,13 @@ def eval_task(cfg: TaskConfig, perturbation: Perturbation = Perturbation()) -> T
 
 
 SETTABLE = ("ankle_armature", "arm_armature", "pd_velocity_target", "pd_action_scale", "effort_scale", "passive_damping",
-            "joint_velocity", "target_velocity_window", "alpha", "terminate_on", "reward_weights", "reward_scales")
+            "joint_velocity", "target_velocity_window", "alpha", "terminate_on", "reward_weights", "reward_scales",
+            "reference_filter_hz", "reference_floor", "pd_target_range")
 """`ExecutorConfig` fields an evaluation may change from what the checkpoint trained with
-(`--set NAME=VALUE`): the body's model, the PD, and how the reward and the rule measure. The
-clip set, the split and the perturbations have options of their own."""
+(`--set NAME=VALUE`): the body's model, the PD, how the reference clips are cleaned, and how the
+reward and the rule measure. The clip set, the split and the perturbations have options of their own."""
 ONLY_FOR_ACTUATION = {"pd_velocity_target": "pd", "pd_action_scale": "pd", "effort_scale": "torque",
-                      "passive_damping": "torque"}
+                      "passive_damping": "torque", "pd_target_range": "pd"}
 """`SETTABLE` fields that only one actuation reads: setting one on the other would change nothing."""
 
 
@@ -305,9 +306,10 @@ def first_failures(terms: dict[str, float], weights, alpha: float, own_rule: str
 
 def run_episode(env, policy, clip_id: str, start_s: float, own_rule: str, seed: int,
                 perturbation: Perturbation = Perturbation(), on_step: Callable[[Any, int], None] | None = None,
-                ) -> dict[str, Any]:
+                max_steps: int | None = None) -> dict[str, Any]:
     """One deterministic episode on `clip_id` from `start_s` in an `eval_task` environment;
-    the record of the module docstring. `seed` seeds the projectile's directions."""
+    the record of the module docstring. `seed` seeds the projectile's directions. `max_steps`:
+    stop after that many control steps (what has not failed by then counts as not failed)."""
     ex = env.ex
     rng = np.random.default_rng(seed)
     obs, _ = env.reset(seed, env.space.default_array, clip_id=clip_id, start_s=start_s)
@@ -346,14 +348,14 @@ def run_episode(env, policy, clip_id: str, start_s: float, own_rule: str, seed: 
             fail["own"] = k
         if info["body_error_m"] > PHC_THRESHOLD_M and fail["phc"] is None:
             fail["phc"] = k
-        if term or trunc:
+        if term or trunc or (max_steps is not None and k >= max_steps):
             break
     own_end = min(fail["own"] or k, len(rewards))
     ret = float(sum(rewards[:own_end]))
     return {
         "clip_id": clip_id, "start_s": float(start_s), "planned_steps": planned, "steps": k,
         "success": fail["per_term"] is None, "pose_success": fail["pose"] is None, "phc_success": fail["phc"] is None,
-        "fail_step": fail["per_term"], "failed_term": failed_term, "phc_fail_step": fail["phc"],
+        "fail_step": fail["per_term"], "pose_fail_step": fail["pose"], "failed_term": failed_term, "phc_fail_step": fail["phc"],
         "own_end_step": fail["own"] or k, "diverged": diverged,
         "tracked_frac": (fail["per_term"] - 1) / max(planned, 1) if fail["per_term"] else 1.0,
         "return": ret,
@@ -368,7 +370,7 @@ _WORKER: dict[str, Any] = {}
 
 
 def _init_worker(state_file: str, clips: list[EvalClip], perturbation: Perturbation, zero_action: bool = False,
-                 cfg_json: str = "") -> None:
+                 cfg_json: str = "", max_steps: int | None = None) -> None:
     from learner.config import RunConfig
 
     torch.set_num_threads(1)
@@ -377,14 +379,14 @@ def _init_worker(state_file: str, clips: list[EvalClip], perturbation: Perturbat
         loaded = dataclasses.replace(loaded, cfg=RunConfig.from_json(cfg_json))
     env = make_eval_env(loaded, clips, perturbation)
     policy = harness.ZeroPolicy(env.act_dim) if zero_action else checkpoint.make_policy(loaded, env.obs_dim, env.act_dim)
-    _WORKER.update(env=env, policy=policy,
-                   rule=loaded.cfg.task.executor.termination, perturbation=perturbation)
+    _WORKER.update(env=env, policy=policy, rule=loaded.cfg.task.executor.termination, perturbation=perturbation,
+                   max_steps=max_steps)
 
 
 def _work(job: tuple[int, str, float]) -> dict[str, Any]:
     i, clip_id, start_s = job
     out = run_episode(_WORKER["env"], _WORKER["policy"], clip_id, start_s, _WORKER["rule"], seed=i,
-                      perturbation=_WORKER["perturbation"])
+                      perturbation=_WORKER["perturbation"], max_steps=_WORKER.get("max_steps"))
     return {"index": i, **out}
 
 
@@ -399,20 +401,60 @@ def episode_jobs(clips: list[EvalClip], durations: dict[str, float], starts: int
 
 def evaluate(loaded: checkpoint.Loaded, clips: list[EvalClip], starts: int, workers: int = 1,
              perturbation: Perturbation = Perturbation(), progress: Callable[[int, int], None] | None = None,
-             durations: dict[str, float] | None = None, zero_action: bool = False) -> list[dict[str, Any]]:
+             durations: dict[str, float] | None = None, zero_action: bool = False,
+             max_steps: int | None = None) -> list[dict[str, Any]]:
     """One episode per (clip, start) (`episode_jobs`), each record tagged with its clip's label
     and split, in job order. `durations` (clip time, s) fixes the start frames; by default they
     are read from an environment at normal speed, so every perturbation row starts the same frames.
-    `zero_action`: act with zeros instead of the checkpoint's policy (`harness.ZeroPolicy`)."""
+    `zero_action`: act with zeros instead of the checkpoint's policy (`harness.ZeroPolicy`);
+    `max_steps`: stop every episode after that many control steps (`run_episode`)."""
     if durations is None:
         durations = clip_durations(make_eval_env(loaded, clips), clips)
     jobs = episode_jobs(clips, durations, starts)
-    init = (str(loaded.path), list(clips), perturbation, zero_action, loaded.cfg.to_json())
+    init = (str(loaded.path), list(clips), perturbation, zero_action, loaded.cfg.to_json(), max_steps)
     results = harness.run_jobs(_init_worker, init, _work, jobs, workers, progress)
     by_id = {c.clip_id: c for c in clips}
     for r in results:
         r["label"], r["split"] = by_id[r["clip_id"]].label, by_id[r["clip_id"]].split
     return results
+
+
+CEILING_STEPS = 3
+"""A start whose zero-action episode fails within this many control steps is one no policy can
+be expected to track (`zero_action_ceiling`)."""
+
+
+def zero_action_ceiling(loaded: checkpoint.Loaded, clips: list[EvalClip], starts: int, workers: int = 1,
+                        records: list[dict] | None = None, steps: int = CEILING_STEPS) -> dict[str, Any]:
+    """The starts that fail within `steps` control steps with zero actions (the PD on the
+    reference itself for PD targets, no torque for torques), run for those steps only on the
+    same (clip, start) jobs as `evaluate`: such a start is lost before any policy could act on
+    it (the reference's pose or velocity at the start is already out of reach), so the share of
+    the others is the ceiling of success. Returns {"steps", "episodes", "failed", "failed_pct",
+    "ceiling_pct", "pose_failed", "pose_ceiling_pct" (the same by the pose terms), "by_split":
+    {split: those}, "starts": [(clip_id, start_s)] of the failed ones}, and with the policy's
+    `records` of the same jobs "policy_success_on_failed": how many of those the policy tracked."""
+    zero = evaluate(loaded, clips, starts, workers, zero_action=True, max_steps=steps)
+
+    def agg(rs: list[dict]) -> dict[str, Any]:
+        n = len(rs)
+        bad = sum(r["fail_step"] is not None and r["fail_step"] <= steps for r in rs)
+        pose_bad = sum(r["pose_fail_step"] is not None and r["pose_fail_step"] <= steps for r in rs)
+        return {"episodes": n, "failed": bad, "failed_pct": 100.0 * bad / n if n else None,
+                "ceiling_pct": 100.0 * (n - bad) / n if n else None, "pose_failed": pose_bad,
+                "pose_ceiling_pct": 100.0 * (n - pose_bad) / n if n else None}
+
+    out: dict[str, Any] = {"steps": steps, **agg(zero)}
+    by_split: dict[str, list[dict]] = defaultdict(list)
+    for r in zero:
+        by_split[r["split"]].append(r)
+    out["by_split"] = {k: agg(by_split[k]) for k in SPLITS if k in by_split}
+    failed = [r for r in zero if r["fail_step"] is not None and r["fail_step"] <= steps]
+    out["starts"] = [(r["clip_id"], r["start_s"]) for r in failed]
+    if records is not None:
+        by_index = {r["index"]: r for r in records}
+        out["policy_success_on_failed"] = sum(bool(by_index[r["index"]]["success"]) for r in failed if r["index"] in by_index)
+    return out
 
 
 # ---- aggregates ----

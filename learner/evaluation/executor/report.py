@@ -171,6 +171,7 @@ def markdown(loaded: checkpoint.Loaded, summary: dict, meta: dict, files: list[s
         "## By split", "", head, rule,
         *(stats_row(k, s) for k, s in summary["splits"].items()),
         stats_row("**all**", summary["overall"]), "",
+        *([ceiling_line(summary["zero_action_ceiling"]), ""] if summary.get("zero_action_ceiling") else []),
         "## By class", "", "| class " + STATS_HEAD, rule,
         *(stats_row(f"`{k}`", s) for k, s in summary["classes"].items()), "",
         "## By clip", "",
@@ -185,6 +186,17 @@ def markdown(loaded: checkpoint.Loaded, summary: dict, meta: dict, files: list[s
                      f"| {_f(s['reward_per_step'], '.3f')} | {_f(s['tracked_pct'])} | {ended} |")
     lines += ["", "Files: " + ", ".join(f"`{Path(f).name}`" for f in files), ""]
     return "\n".join(lines)
+
+
+def ceiling_line(c: dict) -> str:
+    """The zero-action ceiling (`xe.zero_action_ceiling`) in one markdown sentence."""
+    splits = "; ".join(f"{k} {s['failed']} of {s['episodes']}" for k, s in c["by_split"].items())
+    policy = (f"; the policy tracked {c['policy_success_on_failed']} of them to the end" if "policy_success_on_failed" in c
+              else "")
+    return (f"**Zero-action ceiling**: {c['failed']} of {c['episodes']} starts ({_f(c['failed_pct'])}%; {splits}) fail "
+            f"UniCon's rule within {c['steps']} control steps with zero actions (the PD on the reference itself), "
+            f"{c['pose_failed']} by the pose terms alone: success is out of reach there, so the ceiling is "
+            f"{_f(c['ceiling_pct'])}% ({_f(c['pose_ceiling_pct'])}% for pose success){policy}.")
 
 
 def plot_clips(summary: dict, path: Path, title: str = "") -> Path:
@@ -266,6 +278,7 @@ def evaluate_checkpoint(loaded: checkpoint.Loaded, clips: list[xe.EvalClip], sta
 
     records = xe.evaluate(loaded, clips, starts, workers, progress=progress, zero_action=zero_action)
     summary = xe.summarize(records, clips)
+    summary["zero_action_ceiling"] = xe.zero_action_ceiling(loaded, clips, starts, workers, records)
     meta = {"checkpoint": str(loaded.path), "name": loaded.name, "task": "executor",
             "iteration": int(loaded.state.get("iteration", 0)), "env_steps": int(loaded.state.get("env_steps", 0)),
             "training": describe(loaded.cfg), "termination": loaded.cfg.task.executor.termination,
@@ -315,5 +328,9 @@ def main(argv: list[str]) -> int:
     for group, stats in s["splits"].items():
         print(line(name, group, stats))
     print(line(name, "all", s["overall"]) + f"; wrote {out}")
+    c = s["zero_action_ceiling"]
+    print(f"[evaluate] {name} zero-action ceiling: {c['failed']} of {c['episodes']} starts fail within {c['steps']} "
+          f"steps with zero actions (pose: {c['pose_failed']}); ceiling {_f(c['ceiling_pct'])}% "
+          f"(pose {_f(c['pose_ceiling_pct'])}%)")
     return 0
 
