@@ -29,6 +29,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "motion": ("learner.commands.motion", "import, view and check motion clips"),
     "stroke-speed": ("learner.tools.stroke_speed", "how fast the base swimmers' strokes carry them, per PD stiffening"),
     "stroke-fit": ("learner.tools.stroke_fit", "measure random swimmer shapes' stroke speeds and fit the per-shape speed model"),
+    "keypoints": ("learner.live.keypoints", "convert keypoints of another layout (MJCF keyframe mpos, .npy/.npz) to the video scheduler's joints"),
     "send-poses": ("learner.live.pose_sender", "send a clip's joint positions over UDP to the video scheduler (morphmimic play --scheduler video)"),
     "local-cluster": ("learner.commands.local_cluster", "a Ray head and two worker nodes on this machine, to train on with --mode cluster"),
     "bench": ("learner.bench.cli", "benchmarks: throughput, learner, scaling, capacity, replicas, characters, episodes, env-steps, sampler, soak, curve"),

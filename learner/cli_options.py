@@ -23,9 +23,13 @@ with one line on stderr naming the value and what is allowed, exit 2:
 
 from __future__ import annotations
 
+import ast
 import contextlib
+import dataclasses
+import inspect
 import io
 import sys
+import textwrap
 from collections.abc import Callable
 from typing import Annotated, Any, NoReturn, TypeVar
 
@@ -131,6 +135,60 @@ def one_line(box: str) -> str:
         if sec[0].startswith(("Argument helptext", "Perhaps you meant")) and len(sec) > 1:
             text += ("; expected: " if sec[0].startswith("Argument") else "; did you mean: ") + sec[1]
     return text
+
+
+def field_docs(cls: type) -> dict[str, str]:
+    """Each field's docstring (the string right after it in the class body, as tyro reads it),
+    base classes first, by field name; fields without one are left out."""
+    docs: dict[str, str] = {}
+    for klass in reversed(cls.__mro__[:-1]):
+        try:
+            body = ast.parse(textwrap.dedent(inspect.getsource(klass))).body[0].body
+        except (OSError, TypeError, IndexError, AttributeError):
+            continue
+        for node, after in zip(body, body[1:]):
+            if isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name) and isinstance(after, ast.Expr) \
+                    and isinstance(after.value, ast.Constant) and isinstance(after.value.value, str):
+                docs[node.target.id] = inspect.cleandoc(after.value.value)
+    return docs
+
+
+def short_help(cls: type, names: list[str], defaults: Any, prog: str, head: str = "", extra: list[tuple[str, str]] = (),
+               more: str = "--help-all") -> str:
+    """A short --help: the usage line, `head`, then the fields `names` of dataclass `cls` as flags
+    with their values (a Literal's choices), defaults (from `defaults`, an instance) and field
+    docstrings, `extra` (flag, text) rows first; ends with a line naming `more` for every option.
+    Built from the dataclass, so it cannot drift from the parser."""
+    from typing import Literal, get_args, get_origin, get_type_hints
+
+    hints, docs = get_type_hints(cls), field_docs(cls)
+    fields = {f.name for f in dataclasses.fields(cls)}
+    rows = list(extra)
+    for name in names:
+        if name not in fields:
+            raise ValueError(f"{cls.__name__} has no field {name!r}")
+        hint, value = hints[name], getattr(defaults, name)
+        flag = "--" + name.replace("_", "-")
+        if get_origin(hint) is Literal:
+            flag += " {" + ",".join(map(str, get_args(hint))) + "}"
+        elif hint is bool:
+            flag += " / --no-" + name.replace("_", "-")
+        else:
+            flag += " " + getattr(hint, "__name__", "VALUE").upper()
+        text = " ".join(docs.get(name, "").split())
+        rows.append((flag, f"{text} (default: {value!r})" if not isinstance(value, str) or value else f"{text} (default: '')"))
+    width = min(max(len(f) for f, _ in rows), 36)
+    lines = [f"usage: {prog} [OPTIONS]", ""] + ([head.rstrip(), ""] if head else []) + ["common options:"]
+    for flag, text in rows:
+        wrapped = textwrap.wrap(text, 100 - width - 4) or [""]
+        if len(flag) > width:
+            lines.append(f"  {flag}")
+            lines += [" " * (width + 4) + w for w in wrapped]
+        else:
+            lines.append(f"  {flag:<{width}}  {wrapped[0]}")
+            lines += [" " * (width + 4) + w for w in wrapped[1:]]
+    lines += ["", f"{more} shows every option (the task, policy, PPO, actors, sampler, ...) with its default."]
+    return "\n".join(lines)
 
 
 def parse_options(cls: type[T], argv: list[str], prog: str, description: str | None = None,

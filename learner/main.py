@@ -3,7 +3,8 @@
     morphmimic train                          # the default preset, single machine
     morphmimic train --preset reach-tiny --mode serial
     morphmimic train --ppo.lr 1e-4 --actors.num-actors 4 --total-env-steps 2000000
-    morphmimic train --help                   # every option, with its default
+    morphmimic train --help                   # the options a user changes
+    morphmimic train --help-all               # every option, with its default
 
 `--preset NAME` picks the starting configuration; every other option overrides a field of it.
 """
@@ -13,11 +14,13 @@ from __future__ import annotations
 import logging
 import sys
 
-from learner.cli_options import parse_options, scan_flag
+from learner.cli_options import parse_options, scan_flag, short_help
 from learner.config import RunConfig
 from learner.presets import PRESETS
 
 DEFAULT_PRESET = "reach"
+SHORT_HELP = ["total_env_steps", "name", "mode", "resume", "runs_dir", "ray_address", "seed", "quiet"]
+"""The `RunConfig` fields `--help` shows (with --preset); `--help-all` shows them all."""
 
 
 def parse(argv: list[str]) -> RunConfig:
@@ -29,6 +32,16 @@ def parse(argv: list[str]) -> RunConfig:
     if preset not in PRESETS:
         print(f"python -m learner.main: --preset {preset!r} is unknown; presets: {', '.join(PRESETS)}", file=sys.stderr)
         raise SystemExit(2)
+    before_dashes = rest[: rest.index("--")] if "--" in rest else rest
+    if "--help-all" in before_dashes:
+        rest = ["--help" if a == "--help-all" else a for a in rest]
+    elif "-h" in before_dashes or "--help" in before_dashes:
+        presets = "; ".join(PRESETS)
+        print(short_help(RunConfig, SHORT_HELP, PRESETS[preset][1], "python -m learner.main (morphmimic train)",
+                         head=__doc__.split("\n\n")[0],
+                         extra=[("--preset NAME", f"the starting configuration, every other option overriding a field of it: "
+                                                  f"{presets} (default: {DEFAULT_PRESET}; now: {preset})")]))
+        raise SystemExit(0)
     description = (
         __doc__
         + "\npresets (--preset NAME, default "

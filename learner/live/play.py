@@ -28,7 +28,7 @@ from typing import Annotated, Any, ClassVar
 
 from common.config_limits import PORT, Limit, above, at_least, check_limits, validated
 from learner.cli_options import parse_options, value_list
-from learner.live.session import LiveSession, Scheduler, SessionOptions, number_pair, shape_pair
+from learner.live.session import LiveSession, Scheduler, SessionOptions, number_pair, shape_pair, video_status
 
 PROG = "morphmimic play"
 
@@ -105,8 +105,9 @@ def status_line(session: LiveSession) -> str:
     last = session.last
     terms = " ".join(f"{k[:9]} {v:.2f}" for k, v in (last.get("terms") or {}).items())
     where = f" | {last['clip_id']} {last.get('clip_time_s', 0.0):.1f}s" if "clip_id" in last else ""
+    video = video_status(session.scheduler)
     return (f"[play] t {session.steps * session.env.dt:6.1f}s | return {session.episode_return:8.2f} | resets {session.resets}"
-            f"{where} | {terms}")
+            f"{where} | {terms}" + (f" | {video}" if video else ""))
 
 
 def run_realtime(session: LiveSession, seconds: float, speed: float, viewer: bool = False) -> None:
@@ -172,8 +173,9 @@ def main(argv: list[str]) -> int:
                 print(f"{PROG}: --out {args.out}: write an .mp4 (H.264)", file=sys.stderr)
                 return 2
             n = render_video(session, args.out, args.seconds, args.speed, args.fps, args.width, args.height)
+            video = video_status(scheduler)
             print(f"[play] wrote {args.out}: {n} frames at {args.fps:g} fps ({args.seconds:g} s simulated at x{args.speed:g}); "
-                  f"return {session.episode_return:.2f}, resets {session.resets}")
+                  f"return {session.episode_return:.2f}, resets {session.resets}" + (f"; {video}" if video else ""))
         else:
             run_realtime(session, args.seconds, args.speed, args.viewer)
             print(status_line(session))

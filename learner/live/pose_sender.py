@@ -4,13 +4,17 @@ pose estimator. `morphmimic send-poses`:
 
     morphmimic send-poses humanoid3d_walk --port 9870 --loop --seconds 30
     morphmimic send-poses keypoints.npz --fps 30 --port 9870      # [T, J, 3] metres, J = 15
+    morphmimic keypoints convert markers.xml --mapping markers16 --out runs/poses.npz   # another layout
 
 A library clip is played on the humanoid (`MotionLibrary`, no retargeting), its body origins
 computed per frame by MuJoCo's forward kinematics (`mj_kinematics`) and sent at `fps` in real
 time, timestamps k / fps on the stream clock; `speed` plays the clip faster or slower, `loop`
 repeats it (the root carried on by one cycle's displacement per loop). A keypoint file holds
 positions `[T, J, 3]` in metres in the packet's joint order (`.npy`, or `.npz` with an array
-`positions`, or its only array, and optionally a scalar `fps`).
+`positions`, or its only array, and optionally a scalar `fps` and the names `joints`). A file
+whose joints are not the receiver's (another count, or names in another order) is refused
+before anything is sent, exit 2: `morphmimic keypoints convert` turns another layout into
+this one (learner/live/keypoints.py).
 """
 
 from __future__ import annotations
@@ -69,14 +73,16 @@ def clip_positions(clip_id: str, fps: float = 60.0, speed: float = 1.0, loop: bo
         k += len(ks)
 
 
-def load_keypoints(path: str | Path) -> tuple[np.ndarray, float | None]:
-    """(positions `[T, J, 3]` metres, fps or None) from a .npy or .npz file (module docstring)."""
+def load_keypoints(path: str | Path) -> tuple[np.ndarray, tuple[str, ...] | None, float | None]:
+    """(positions `[T, J, 3]` metres, joint names or None, fps or None) from a .npy or .npz file
+    (module docstring)."""
     path = Path(path)
+    names = None
     if path.suffix.lower() == ".npy":
         positions, fps = np.load(path, allow_pickle=False), None
     elif path.suffix.lower() == ".npz":
         with np.load(path, allow_pickle=False) as z:
-            arrays = [k for k in z.files if k != "fps"]
+            arrays = [k for k in z.files if k not in ("fps", "joints")]
             if "positions" in z.files:
                 name = "positions"
             elif len(arrays) == 1:
@@ -85,12 +91,25 @@ def load_keypoints(path: str | Path) -> tuple[np.ndarray, float | None]:
                 raise ValueError(f"{path}: no 'positions' array (arrays: {', '.join(z.files)})")
             positions = z[name]
             fps = float(z["fps"]) if "fps" in z.files else None
+            names = tuple(str(n) for n in z["joints"].reshape(-1)) if "joints" in z.files else None
     else:
         raise ValueError(f"{path}: keypoints must be a .npy or .npz file")
     positions = np.asarray(positions, dtype=np.float64)
     if positions.ndim != 3 or positions.shape[2] != 3 or len(positions) == 0:
         raise ValueError(f"{path}: keypoints must be [T, J, 3], not {list(positions.shape)}")
-    return positions, fps
+    return positions, names, fps
+
+
+def check_layout(path: str | Path, positions: np.ndarray, names: tuple[str, ...] | None,
+                 expected: tuple[str, ...] = pose_packet.HUMANOID_JOINTS) -> None:
+    """ValueError (one line: the count and the expected joints) unless the file's joints are the
+    receiver's: `expected` in number and, when the file names them, in name and order."""
+    hint = f"convert it with `morphmimic keypoints convert {path} --mapping MAP.json --out runs/poses.npz`"
+    want = f"the video scheduler expects {len(expected)}: {', '.join(expected)}"
+    if positions.shape[1] != len(expected):
+        raise ValueError(f"{path} has {positions.shape[1]} joints per frame; {want}; {hint}")
+    if names is not None and tuple(names) != tuple(expected):
+        raise ValueError(f"{path} names its joints {', '.join(names)}; {want}, in that order; {hint}")
 
 
 def send_positions(frames: Iterator[np.ndarray] | np.ndarray, port: int, host: str = "127.0.0.1", fps: float = 60.0, *,
@@ -148,7 +167,7 @@ PROG = "morphmimic send-poses"
 @dataclass
 class SendPosesOptions:
     source: Annotated[str, tyro.conf.Positional, tyro.conf.arg(metavar="SOURCE")]
-    """A humanoid clip id (`morphmimic motion check --all` prints them) or a keypoint file .npy/.npz [T, J, 3]."""
+    """A humanoid clip id (`morphmimic motion check --all` prints them) or a keypoint file .npy/.npz [T, 15, 3] in the receiver's joint order (`morphmimic keypoints convert` makes one)."""
     host: str = "127.0.0.1"
     """Where the video scheduler listens."""
     port: int = DEFAULT_PORT
@@ -173,8 +192,12 @@ class SendPosesOptions:
 def main(argv: list[str]) -> int:
     args = parse_options(SendPosesOptions, argv, prog=PROG, description=__doc__)
     try:
+        if args.source.lower().endswith((".xml", ".mjcf")):
+            raise ValueError(f"{args.source}: send-poses sends the video scheduler's own layout (.npy/.npz); "
+                             f"convert it with `morphmimic keypoints convert {args.source} --mapping MAP.json --out runs/poses.npz`")
         if args.source.lower().endswith((".npy", ".npz")):
-            positions, file_fps = load_keypoints(args.source)
+            positions, names, file_fps = load_keypoints(args.source)
+            check_layout(args.source, positions, names)
             fps = args.fps or file_fps or 60.0
             print(f"[send-poses] {args.source}: {len(positions)} frames of {positions.shape[1]} joints at {fps:g} fps "
                   f"-> udp://{args.host}:{args.port}", flush=True)

@@ -120,6 +120,22 @@ def live_task(loaded: Loaded, clip: str | None = None, episode_s: float = 3600.0
     return dataclasses.replace(harness.eval_task(cfg, episode_s), **({"clip_id": clip} if clip else {}))
 
 
+def video_status(scheduler: Any) -> str | None:
+    """The video scheduler's packets as one line: received, rejected by reason (`pose_packet.REASONS`,
+    out_of_order, ik, socket) and the last rejection's message; None for another scheduler. A
+    sender of the wrong layout is seen here (`rejected 16 (joint_count 16); last: joint_count:
+    packet has 16 joints, this receiver expects 15`) instead of a character standing still."""
+    if scheduler is None or not hasattr(scheduler, "rejected") or not hasattr(scheduler, "received"):
+        return None
+    rejected = dict(scheduler.rejected)
+    text = f"video udp:{getattr(scheduler, 'port', '?')}: received {scheduler.received}, rejected {sum(rejected.values())}"
+    if rejected:
+        text += " (" + ", ".join(f"{k} {v}" for k, v in sorted(rejected.items(), key=lambda kv: -kv[1])) + ")"
+        if getattr(scheduler, "last_error", ""):
+            text += f"; last: {scheduler.last_error}"
+    return text
+
+
 class LiveSession:
     """One environment of `checkpoint` driven by `agent`; see the module docstring."""
 
@@ -145,6 +161,8 @@ class LiveSession:
         self.steps = self.resets = 0
         self.episode_return = 0.0
         self.last: dict[str, Any] = {}
+        self.scheduler: Any = None
+        """The scheduler given to `use_scheduler` (None: the task's own)."""
         self._base_masses: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.params = self.env.space.default_array.copy()
         if shape:
@@ -295,6 +313,7 @@ class LiveSession:
         if self.kind != "executor":
             raise ValueError("schedulers drive the executor; a shape controller follows its own clip")
         self.env.use_scheduler(scheduler)
+        self.scheduler = scheduler
         self.reset()
 
     def throw_projectile(self, speed_mps: float = 10.0) -> None:

@@ -15,3 +15,21 @@ def test_an_unknown_name_is_one_line_and_exit_2(capsys) -> None:
     assert cli.main(["trian"]) == 2 and cli.main(["bench", "speed"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and "'trian'" in err[0] and "train" in err[0] and "'speed'" in err[1] and "curve" in err[1]
+
+
+def test_train_help_is_short_and_help_all_is_the_whole_tree(capsys) -> None:
+    import pytest
+
+    from learner import main as train_main
+
+    for argv in (["--help"], ["--preset", "executor", "--help"], ["--help-all"]):
+        with pytest.raises(SystemExit) as exit_info:
+            train_main.parse(argv)
+        assert exit_info.value.code == 0
+    short, executor, full = capsys.readouterr().out.split("usage: ")[1:4]
+    assert len(short.splitlines()) < 60 < 400 < len(full.splitlines())
+    for name in train_main.SHORT_HELP:  # generated from RunConfig: every listed field, with its docstring
+        assert f"--{name.replace('_', '-')}" in short
+    assert "--preset NAME" in short and "--help-all shows every option" in short and "Step budget" in short
+    assert "(default: 400000)" in short and "(default: 50000000)" in executor  # the chosen preset's defaults
+    assert "--ppo.lr" in full and "--ppo.lr" not in short

@@ -124,3 +124,28 @@ def test_every_shipped_checkpoint_plays_to_a_video(name: str, tmp_path) -> None:
     assert play.main(["--checkpoint", f"learner/pretrained/{name}", "--seconds", "0.5", "--fps", "8",
                       "--width", "96", "--height", "64", "--out", str(out)]) == 0
     assert iio.imread(out, plugin="FFMPEG").shape[0] == 4
+
+
+def test_play_status_shows_video_packets_received_and_rejected_by_reason() -> None:
+    """A sender of the wrong layout (16 markers) is seen in the status line, not a character
+    standing still in silence."""
+    import socket
+
+    from common.tasks.executor.schedulers import pose_packet
+    from learner.live.play import PlayOptions, make_session, status_line
+
+    session, scheduler = make_session(PlayOptions(checkpoint="learner/pretrained/executor", scheduler="video"))
+    try:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+            sock.sendto(b"junk", ("127.0.0.1", scheduler.port))
+            for k in range(3):
+                sock.sendto(pose_packet.encode(k, k / 30, np.zeros((16, 3))), ("127.0.0.1", scheduler.port))
+        for _ in range(20):
+            session.step()
+            if sum(scheduler.rejected.values()) == 4:
+                break
+        line = status_line(session)
+        assert f"video udp:{scheduler.port}: received 0, rejected 4 (joint_count 3, short 1)" in line
+        assert line.endswith("last: joint_count: packet has 16 joints, this receiver expects 15")
+    finally:
+        scheduler.close()

@@ -12,14 +12,14 @@ import pytest
 
 from learner.live import studio as studio_mod
 from learner.live.studio import Studio
-from tests.learner.live.chromium import Chromium, find_chromium
+from learner.live.chromium import Chromium, character_pixels, find_chromium
 
 BIPED = "lower_biped"
 
 
 @pytest.fixture(scope="module")
 def studio():
-    st = Studio(BIPED, host="127.0.0.1", port=0).start()
+    st = Studio(BIPED, host="127.0.0.1", port=0, idle_unwatched=False).start()  # NOTE: the tests step it without a page
     try:
         yield st
     finally:
@@ -45,14 +45,6 @@ def screenshot_until(browser: Chromium, predicate, timeout_s: float) -> np.ndarr
         time.sleep(0.3)
         img = browser.screenshot()
     return img
-
-
-def character_pixels(img: np.ndarray) -> int:
-    """Pixels of the character's blue-grey in the 3-D canvas, away from the panel (right), the
-    notification (top left) and the axes widget (bottom left): the floor grid is neutral grey."""
-    h, w = img.shape[:2]
-    region = img[int(h * 0.3): h - 70, 80: w - 420].astype(int)
-    return int(((region[..., 2] - region[..., 0] >= 12) & (region[..., 0] < 230)).sum())
 
 
 @pytest.mark.skipif(find_chromium() is None, reason="chromium is not installed (apt-get install chromium; .ci/run does)")
@@ -155,6 +147,25 @@ def test_cli_help_and_a_bad_checkpoint(capsys) -> None:
     assert "morphmimic studio:" in capsys.readouterr().err
 
 
+def test_an_unwatched_studio_idles_and_names_the_checkpoint_as_typed() -> None:
+    """No page connected: the loop does not step (CPU idle; measured 29% of a core before, 0.1%
+    after); the status names the checkpoint as typed, not its run's name (lb6-shank)."""
+    st = Studio("lower_biped-20M", host="127.0.0.1", port=0).start()
+    try:
+        assert wait_for(lambda: st.core.idle, 5.0)
+        steps = st.core.loop_steps
+        time.sleep(1.0)
+        assert st.core.loop_steps == steps and st.core.running
+        snap = st.core.snapshot()
+        assert snap["name"] == "lower_biped-20M" and snap["run_name"] == "lb6-shank" and st.core.message == "loaded lower_biped-20M"
+        assert studio_mod.status_markdown(snap).startswith("**lower_biped-20M**")
+        watching = [True]
+        st.core.watched = lambda: bool(watching)  # a page connects
+        assert wait_for(lambda: st.core.loop_steps > steps + 10, 5.0) and not st.core.idle
+    finally:
+        st.stop()
+
+
 def test_the_executor_loads_from_the_dropdown_and_is_steered(studio) -> None:
     """Last in the module: it swaps the shared studio's session for the executor's."""
     core, gui = studio.core, studio.gui
@@ -162,6 +173,7 @@ def test_the_executor_loads_from_the_dropdown_and_is_steered(studio) -> None:
     gui.checkpoint.value = "executor"  # loads in its own thread; the biped keeps walking meanwhile
     assert wait_for(lambda: core.generation == generation + 1, 30.0), core.message
     assert core.session.kind == "executor" and core.errors == errors
+    assert core.snapshot()["name"] == "executor" and core.message == "loaded executor"  # as picked
     gui.refresh()
     assert all(slider.disabled for slider in gui._shape_sliders.values()) and "cannot change" in gui.body_note.content
     assert not gui.scheduler.disabled and "executor" in gui.status.content
@@ -180,3 +192,12 @@ def test_the_executor_loads_from_the_dropdown_and_is_steered(studio) -> None:
     assert core.errors == errors + 1
     steps = core.loop_steps
     assert wait_for(lambda: core.loop_steps > steps + 10, 5.0)
+    core.use_scheduler("video")  # its packets in the status line: a 16-joint sender is rejected by reason
+    assert wait_for(lambda: core.scheduler_name == "video", 5.0), core.message
+    import socket
+
+    from common.tasks.executor.schedulers import pose_packet
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.sendto(pose_packet.encode(0, 0.0, np.zeros((16, 3))), ("127.0.0.1", core.scheduler.port))
+    assert wait_for(lambda: "rejected 1 (joint_count 1)" in (core.snapshot()["video"] or ""), 5.0), core.snapshot()["video"]
+    assert "received 0, rejected 1 (joint_count 1)" in studio_mod.status_markdown(core.snapshot())

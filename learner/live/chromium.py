@@ -2,9 +2,7 @@
 client, which viser already depends on): open a page, evaluate JavaScript, take screenshots,
 without starting the browser again for each one (software WebGL is slow on 2 cores).
 
-Used by tests/learner/live/test_studio.py and to make docs/img/studio.png:
-
-    python -m tests.learner.live.chromium URL OUT.png [WIDTH HEIGHT WAIT_S]
+Used by `morphmimic studio --screenshot` (docs/img/studio.png) and tests/learner/live/test_studio.py.
 """
 
 from __future__ import annotations
@@ -131,19 +129,16 @@ class Chromium:
         self.close()
 
 
+def character_pixels(img: np.ndarray) -> int:
+    """Pixels of the character's blue-grey in the studio's 3-D canvas, away from the panel (right),
+    the notification (top left) and the axes widget (bottom left): the floor grid is neutral grey."""
+    h, w = img.shape[:2]
+    region = img[int(h * 0.3): h - 70, 80: w - 420].astype(int)
+    return int(((region[..., 2] - region[..., 0] >= 12) & (region[..., 0] < 230)).sum())
+
+
 DISMISS_NOTIFICATIONS_JS = """
 (() => { let n = 0;
   for (const b of document.querySelectorAll('.mantine-Notification-root button, .mantine-Notification-closeButton')) { b.click(); n++; }
   return n; })()
 """
-
-
-if __name__ == "__main__":
-    url, out = sys.argv[1], Path(sys.argv[2])
-    w, h, wait_s = (int(sys.argv[3]), int(sys.argv[4]), float(sys.argv[5])) if len(sys.argv) > 5 else (1280, 800, 8.0)
-    with Chromium(url, w, h) as browser:
-        time.sleep(wait_s)
-        browser.evaluate(DISMISS_NOTIFICATIONS_JS)
-        time.sleep(1.0)
-        browser.screenshot_png(out)
-    print(f"wrote {out}")
