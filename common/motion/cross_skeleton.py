@@ -49,15 +49,20 @@ import functools
 from dataclasses import dataclass
 from pathlib import Path
 
+import mujoco
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from common.characters import load_character
 from common.motion import quat
 from common.motion.bvh import Bvh, parse_bvh
 from common.motion.clip import Clip
 from common.motion.errors import ClipError
 from common.motion.import_bvh import BVH_TO_MUJOCO, CMU_SCALE_M, MASS_SCALE_M, TargetJoint, bvh_to_clip, hinge_twist
 from common.motion.import_deepmimic import HUMANOID_JOINTS
+from common.motion.qpos_map import QposMap
+from common.motion.retarget import ContactPhases, RetargetConfig, retarget_qpos
+from common.motion.root_height import foot_heights
 
 # A direction at rest (`Segment`): `(from, to)` joint (source) or body (humanoid) names, the
 # rest position of `to` minus that of `from`; a world axis of the Z-up frame (`AXES`); or a
@@ -242,10 +247,6 @@ class _Target:
 def _target(character: str) -> _Target:
     if character not in TARGETS:
         raise ClipError(f"cannot retarget a BVH onto character {character!r}; targets: {', '.join(map(repr, TARGETS))}")
-    import mujoco
-
-    from common.characters import load_character
-    from common.motion.root_height import foot_heights
 
     ch = load_character(character)
     m = ch.model
@@ -570,10 +571,6 @@ def plant_feet(clip: Clip, character: str = "humanoid", cfg: FloorConfig = Floor
     foot against the local floor (`floor_contacts`), then retarget.py's per-frame root offset
     (the highest contact foot at 0, interpolated across flight) and leg pose solve (any foot
     below the floor lifted onto it). `extra["contact_frac"]` records each foot's contact share."""
-    from common.motion.qpos_map import QposMap
-    from common.motion.retarget import ContactPhases, RetargetConfig, retarget_qpos
-    from common.motion.root_height import foot_heights
-
     target = _target(character)
     model, feet = target.model, target.feet
     qpos = QposMap(clip, model).to_qpos(clip.root_pos, clip.root_quat, clip.joint_qpos)

@@ -19,6 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from common.tasks.registry import make_env, task_space
+from common.tasks.shape.presets import shape_task
+
 SWIMMERS = ("fish", "manta")
 CLOSE_TRACKING_GAIN = 30.0
 """PD stiffening that tracks the base swimmers' strokes to within 0.01 rad (mean over joints)."""
@@ -39,9 +42,6 @@ def stroke_speed(preset: str, gain_scale: float = CLOSE_TRACKING_GAIN, start_s: 
     preset's parameterization) tracking its stroke with PD gains x `gain_scale` and zero action,
     averaged over [start_s, stop_s] (see the module docstring). `clip_speed_m_s` is then the
     speed of the reference the task retargets to that body."""
-    from common.tasks.registry import make_env, task_space
-    from common.tasks.shape.presets import shape_task
-
     if preset not in SWIMMERS:
         raise ValueError(f"stroke speed: {preset!r} is not a swimmer; choose one of {SWIMMERS}")
     if not (np.isfinite(gain_scale) and gain_scale >= 1.0):
