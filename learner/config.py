@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 from dataclasses import dataclass, field
 from typing import ClassVar, Literal, get_args, get_origin, get_type_hints
 
@@ -148,7 +149,6 @@ class RunConfig:
         """Torch threads of each learner process (`--learner.threads`, or what is left of this machine)."""
         if self.learner.threads > 0:
             return self.learner.threads
-        import os
 
         local_actors = self.actors.num_actors * self.actors.num_cpus if self.mode != "cluster" else 0
         local_learners = self.learner.replicas if self.mode != "cluster" else 1

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from learner.cli import dispatch
+
 
 BENCHMARKS: dict[str, tuple[str, str]] = {
     "throughput": ("learner.bench.throughput", "end-to-end collection vs pure simulation, learner share, transport bytes/s"),
@@ -19,6 +21,4 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
 
 
 def main(argv: list[str]) -> int:
-    from learner.cli import dispatch
-
     return dispatch("morphmimic bench", "benchmark", BENCHMARKS, argv)

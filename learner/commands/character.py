@@ -17,6 +17,9 @@ from typing import ClassVar
 
 import tyro
 
+from common.characters import ShapeError, list_presets, load_character
+from common.characters.character import build_base
+from common.characters.render import render_png
 from common.config_limits import Limit, above, check_limits, validated
 from learner.cli_options import parse_options
 
@@ -59,9 +62,6 @@ def _parse_shape(text: str | None) -> dict[str, str]:
 
 
 def main(argv: list[str]) -> int:
-    from common.characters import ShapeError, list_presets, load_character
-    from common.characters.character import build_base
-
     description = f"{__doc__.split(chr(10) * 2)[0]}\n\npresets: {', '.join(list_presets())}"
     args = parse_options(CharacterOptions, argv,
                          prog="morphmimic character", description=description)
@@ -90,8 +90,6 @@ def main(argv: list[str]) -> int:
                 ch.spec.delete(key)
             print(f"wrote {args.mjcf}")
         if args.png:
-            from common.characters.render import render_png
-
             render_png(ch, args.png)
             print(f"wrote {args.png}")
     except (ShapeError, ValueError) as exc:
