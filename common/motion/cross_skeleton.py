@@ -394,7 +394,7 @@ def aim_bend_plane(want_b: Rotation, want_c: Rotation, d_b: np.ndarray, d_c: np.
     A hinge keeps only the twist of the child's rotation about its axis; where the source's
     knee or elbow bends in another plane than the one the humanoid's hinge axis allows (a
     different twist convention of the source's upper arm, swing in a source's knee), the
-    child's bone would miss its direction (measured before this: up to 41 degrees on the MASS
+    child's bone would miss its direction (without the turn: up to 41 degrees on the MASS
     pirouette's elbows, 22 on average on the CMU clip's). Turning b about its bone by the angle
     that puts the hinge axis along +-(u x w) (u: b's bone, w: the child's bone's component
     across u; the sign from the hinge's one-sided range) keeps b's bone direction and lets the

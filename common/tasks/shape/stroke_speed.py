@@ -6,8 +6,8 @@ Won & Lee 2019 (METHOD.md A) drive the fish and the manta ray with hand-made sin
 keyframes whose root moves forward; in MuJoCo's fluid the root's speed is not free but what the
 stroke's thrust gives. A reference whose root runs slower than its own stroke pushes is a
 contradiction the policy cannot resolve: the imitation terms reward tracking the stroke, and a
-tracked stroke outswims the root (a swimmer used to count as fallen more than a body length
-from its reference's root; now only off its course, `ImitateEnv.off_course_m`). So the clip's
+tracked stroke outswims the root (a swimmer falls only off its reference's course, not by lagging
+or leading along it: `ImitateEnv.off_course_m`). So the clip's
 speed is measured with the stroke tracked closely: the base body's PD gains stiffened `gain_scale` times (kp x s, kd x sqrt(s)), its torque limits kept (what a
 policy can reach), zero action, from `start_s` to `stop_s`.
 """
