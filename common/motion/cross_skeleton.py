@@ -53,7 +53,6 @@ import mujoco
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from common.characters import load_character
 from common.motion import quat
 from common.motion.bvh import Bvh, parse_bvh
 from common.motion.clip import Clip
@@ -247,6 +246,9 @@ class _Target:
 def _target(character: str) -> _Target:
     if character not in TARGETS:
         raise ClipError(f"cannot retarget a BVH onto character {character!r}; targets: {', '.join(map(repr, TARGETS))}")
+
+    # lazy: start-up time of train --help, which loads common.motion (common.characters adds scipy.optimize)
+    from common.characters import load_character
 
     ch = load_character(character)
     m = ch.model

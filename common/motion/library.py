@@ -21,8 +21,6 @@ from pathlib import Path
 
 import mujoco
 
-from common.characters import load_character
-from common.characters.presets import PRESETS
 from common.motion.clip import Clip, load_clip
 from common.motion.cross_skeleton import guess_skeleton, retarget_bvh
 from common.motion.errors import ClipError
@@ -82,6 +80,9 @@ def clips_for(character: str, manifest: Manifest | None = None) -> list[tuple[st
     loads each. The procedural gaits (`procedural/<preset>`) are not manifest clips.
     Raises ClipError naming an unknown character preset.
     """
+    # lazy: start-up time of train --help, which loads common.motion (common.characters adds scipy.optimize)
+    from common.characters.presets import PRESETS
+
     if character not in PRESETS:
         raise ClipError(f"unknown character {character!r}; presets: {', '.join(PRESETS)}")
     manifest = manifest or load_manifest()
@@ -137,6 +138,9 @@ class MotionLibrary:
     def base_character(self, preset: str):
         """The preset at its default shape (cached)."""
         if preset not in self._bases:
+            # lazy: start-up time of train --help, which loads common.motion (common.characters adds scipy.optimize)
+            from common.characters import load_character
+
             self._bases[preset] = load_character(preset)
         return self._bases[preset]
 

@@ -31,7 +31,6 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from common.characters import load_character
 from common.motion.clip import Clip
 from common.motion.leg_solve import Leg, lift_foot
 from common.motion.qpos_map import QposMap
@@ -176,6 +175,9 @@ def play_on(clip: Clip, character, base_character=None, cfg: RetargetConfig = Re
     feet = character_feet(character)
     ees = tuple(getattr(character, "end_effector_bodies", ()))
     if base_character is None:
+        # lazy: start-up time of train --help, which loads common.motion (common.characters adds scipy.optimize)
+        from common.characters import load_character
+
         base_character = load_character(character.preset)
     if not feet:
         return CharacterMotion.from_clip(swim_path_scaled(clip, character.length_m / base_character.length_m),

@@ -31,7 +31,6 @@ from common.config_limits import SEED, Limit, above, between, check_limits, vali
 from learner.cli_options import parse_options
 from learner.cluster import start_test_cluster as start
 from learner.presets import PRESETS, check_presets
-from learner.train import Run, train
 
 
 def _ledger(run_dir: Path) -> dict[int, int]:
@@ -69,6 +68,8 @@ def main(argv: list[str]) -> int:
     args = parse_options(SoakBenchOptions, argv, prog=PROG, description=__doc__)
 
     import ray  # lazy: heavy (ray), after parsing so --help is fast
+
+    from learner.train import Run, train  # lazy: start-up time of --help (tensorboard, the actors)
 
     rng = np.random.default_rng(args.seed)
     injected: collections.Counter[str] = collections.Counter()

@@ -19,7 +19,6 @@ import tyro
 
 from common.characters import ShapeError, list_presets, load_character
 from common.characters.character import build_base
-from common.characters.render import render_png
 from common.config_limits import Limit, above, check_limits, validated
 from learner.cli_options import parse_options
 
@@ -90,6 +89,8 @@ def main(argv: list[str]) -> int:
                 ch.spec.delete(key)
             print(f"wrote {args.mjcf}")
         if args.png:
+            from common.characters.render import render_png  # lazy: heavy (imageio), only with --png
+
             render_png(ch, args.png)
             print(f"wrote {args.png}")
     except (ShapeError, ValueError) as exc:

@@ -18,7 +18,6 @@ from typing import Annotated, ClassVar, Literal, get_args
 import numpy as np
 import tyro
 
-from common.characters import load_character
 from common.config_limits import SEED, Limit, above, at_least, check_limits, validated
 from common.motion import bandai
 from common.motion.check import check_motion
@@ -31,7 +30,6 @@ from common.motion.procedural import GENERATORS
 from common.motion.reference import CharacterMotion
 from common.motion.retarget import character_feet, contact_phases, play_on
 from common.motion.root_height import ROOT_HEIGHT_RULES
-from common.motion.view import write_animation, write_strip
 from learner.cli import dispatch
 from learner.cli_options import parse_options
 
@@ -150,6 +148,9 @@ def _resolve(lib, spec: str, character: str | None = None):
 
 
 def _character(preset: str, args):
+    # lazy: start-up time of morphmimic motion --help (common.characters adds scipy.optimize)
+    from common.characters import load_character
+
     shape = _parse_shape(args.shape)
     if args.random_shape is not None:
         base = load_character(preset, parameterization=args.parameterization)
@@ -166,6 +167,9 @@ def cmd_import(args) -> int:
         lib = MotionLibrary()
         jobs += [(e.id, lambda e=e: import_entry(e)) for e in lib.manifest.entries]
     if args.procedural:
+        # lazy: start-up time of morphmimic motion --help (common.characters adds scipy.optimize)
+        from common.characters import load_character
+
         jobs += [(f"procedural/{p}", lambda p=p, g=g: g(load_character(p))) for p, g in GENERATORS.items()]
     for src in args.sources:
         jobs.append((Path(src).stem, lambda s=src: import_source(s, fps=args.fps, skeleton=args.skeleton, label=args.label,
@@ -193,6 +197,9 @@ def cmd_view(args) -> int:
     motion = play_on(clip, ch, lib.base_character(preset)) if args.retarget else None
     if motion is None:
         motion = CharacterMotion.from_clip(clip, ch.model, tuple(ch.end_effector_bodies))
+    # lazy: start-up time of morphmimic motion --help (imageio)
+    from common.motion.view import write_animation, write_strip
+
     out = Path(args.out)
     if out.suffix.lower() == ".png":
         write_strip(motion, out, n_frames=args.frames, seconds=args.seconds)

@@ -19,9 +19,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common.tasks.registry import make_env, task_space
-from common.tasks.shape.presets import shape_task
-
 SWIMMERS = ("fish", "manta")
 CLOSE_TRACKING_GAIN = 30.0
 """PD stiffening that tracks the base swimmers' strokes to within 0.01 rad (mean over joints)."""
@@ -48,6 +45,10 @@ def stroke_speed(preset: str, gain_scale: float = CLOSE_TRACKING_GAIN, start_s: 
         raise ValueError(f"stroke speed: gain scale {gain_scale} must be a finite number >= 1")
     if not (0.0 <= start_s and start_s + 1.0 <= stop_s <= 60.0):
         raise ValueError(f"stroke speed: window [{start_s}, {stop_s}] s must satisfy 0 <= start, start + 1 <= stop <= 60")
+    # lazy: start-up time of morphmimic stroke-speed --help (mujoco via the tasks)
+    from common.tasks.registry import make_env, task_space
+    from common.tasks.shape.presets import shape_task  # lazy: as above
+
     task = shape_task(preset)
     task = dataclasses.replace(task, episode_s=stop_s + 1.0, imitate=dataclasses.replace(
         task.imitate, max_root_deviation=0.0, random_start_phase=False, swimmer_speed="length"))
