@@ -27,6 +27,7 @@ from common.curve_keys import RunKeys
 from common.policy import PolicyConfig
 from common.tasks.base import TaskConfig
 from common.tasks.registry import task_space
+from sampler.client import SamplerClient
 
 log = logging.getLogger(__name__)
 
@@ -58,9 +59,6 @@ class RolloutActor:
         self.sampler = None
         fetch = None
         if endpoints.get("sampler"):
-            # the sampler package is optional for actors
-            from sampler.client import SamplerClient
-
             lookup = endpoints["sampler"] if sampler_handle is None else _endpoint_lookup(sampler_handle)
             self.sampler = SamplerClient(lookup, timeout_s=cfg.sampler_timeout_s, retries=cfg.sampler_retries, keys=keys)
             fetch = self._fetch_draws
@@ -179,7 +177,7 @@ def _endpoint_lookup(handle):
     """An endpoint callable that asks the sampler's Ray actor where it listens now."""
 
     def lookup() -> str:
-        import ray
+        import ray  # lazy: heavy (ray), only when the sampler runs as a Ray actor
 
         return ray.get(handle.endpoint.remote(), timeout=10)
 
@@ -188,7 +186,7 @@ def _endpoint_lookup(handle):
 
 def _node_id() -> str:
     try:
-        import ray
+        import ray  # lazy: heavy (ray), only inside a Ray worker; serial mode reports 'local'
 
         if ray.is_initialized():
             return ray.get_runtime_context().get_node_id()

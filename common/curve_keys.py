@@ -26,6 +26,7 @@ from dataclasses import dataclass, replace
 
 import zmq
 from zmq.auth.thread import ThreadAuthenticator
+from zmq.utils import z85
 from zmq.utils.monitor import recv_monitor_message
 
 LEARNER, ACTOR = "learner", "actor"
@@ -140,8 +141,6 @@ class Gatekeeper(ThreadAuthenticator):
         return ok
 
     def curve_user_id(self, client_public_key: bytes) -> str:
-        from zmq.utils import z85
-
         return self.keys_by_z85.get(z85.encode(client_public_key), "")
 
 

@@ -49,6 +49,7 @@ def use_offscreen_context() -> str | None:
     making a renderer. RuntimeError when there is neither a display nor an offscreen GL."""
     chosen = choose_offscreen_gl()
     backend = chosen.strip().lower() if chosen else None
+    # lazy: after MUJOCO_GL is set above, so a first import of mujoco takes the chosen backend
     import mujoco.rendering.classic.gl_context as gl_context
 
     if backend is None and not os.environ.get("DISPLAY"):
@@ -61,8 +62,8 @@ def use_offscreen_context() -> str | None:
     # mujoco was imported before MUJOCO_GL was set and took GLFW: swap in the offscreen context
     os.environ["PYOPENGL_PLATFORM"] = backend
     if backend == "egl":
-        from mujoco.egl import GLContext
+        from mujoco.egl import GLContext  # lazy: needs PYOPENGL_PLATFORM set above; EGL is not on every machine
     else:
-        from mujoco.osmesa import GLContext
+        from mujoco.osmesa import GLContext  # lazy: needs PYOPENGL_PLATFORM set above; OSMesa is not on every machine
     gl_context.GLContext = GLContext
     return backend

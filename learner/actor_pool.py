@@ -9,6 +9,7 @@ from typing import Protocol
 
 from actors.actor import RolloutActor
 from common.curve_keys import RunKeys
+from learner import cluster
 from learner.config import RunConfig
 
 log = logging.getLogger(__name__)
@@ -52,9 +53,7 @@ class RayActorPool:
                  keys: RunKeys | None = None) -> None:
         """`keys`: the run's CURVE keys as actors hold them (`RunKeys.for_actors`), handed to each
         actor through Ray (the cluster's own token authentication guards that channel)."""
-        import ray
-
-        from learner import cluster
+        import ray  # lazy: heavy (ray), only in the Ray modes
 
         self.ray = ray
         remote_cls = ray.remote(RolloutActor)
@@ -94,7 +93,7 @@ class RayActorPool:
 
     def _gone_for_good(self, i: int) -> bool:
         try:
-            from ray.util.state import get_actor
+            from ray.util.state import get_actor  # lazy: heavy (ray's state API), only when an actor has failed
 
             state = get_actor(self.handles[i]._actor_id.hex(), timeout=10)
             return state is not None and state.state == "DEAD"

@@ -21,6 +21,7 @@ import numpy as np
 import torch
 
 from common.policy import GaussianPolicy
+from common.tasks.executor.env import labelled_clips
 from learner.config import RunConfig
 
 log = logging.getLogger(__name__)
@@ -148,8 +149,6 @@ def load_trained(path: str | Path) -> Loaded:
     try:
         cfg = RunConfig.from_json(str(state["config"]))
         if cfg.task.name == "executor":  # its named clips must play on the humanoid
-            from common.tasks.executor.env import labelled_clips
-
             labelled_clips(cfg.task)
     except ValueError as exc:
         raise SystemExit(f"{file}: its saved configuration is refused: {exc}") from None

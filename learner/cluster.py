@@ -54,6 +54,7 @@ def find_running_cluster(explicit: str = "") -> tuple[str, str] | None:
     if os.environ.get("RAY_ADDRESS"):
         return os.environ["RAY_ADDRESS"], "RAY_ADDRESS"
     try:
+        # lazy: heavy (ray), only when looking for a cluster; a private API that may be absent
         from ray._private.utils import read_ray_address
 
         recorded = read_ray_address(None)
@@ -73,6 +74,7 @@ def _use_token_auth_if_available() -> None:
     if os.environ.get("RAY_AUTH_MODE"):
         return
     try:
+        # lazy: heavy (ray), only when attaching to a cluster; absent in older Ray
         from ray._private.authentication.authentication_token_setup import maybe_enable_token_auth_if_token_available
 
         maybe_enable_token_auth_if_token_available(warn_if_disabled=False)
@@ -82,7 +84,7 @@ def _use_token_auth_if_available() -> None:
 
 def connect(mode: str, explicit_address: str, num_actors: int, actor_cpus: float, learner_replicas: int = 1) -> RayContext:
     """Attach to a running cluster or start a private local Ray instance, per `mode`."""
-    import ray
+    import ray  # lazy: heavy (ray), only in the Ray modes
 
     found = None if mode == "local" else find_running_cluster(explicit_address)
     if found is not None:
@@ -122,7 +124,7 @@ def bind_host(ctx: RayContext | None, override: str) -> str:
         return override
     if ctx is None:
         return "127.0.0.1"
-    import ray
+    import ray  # lazy: heavy (ray), only in the Ray modes
 
     here = ray.util.get_node_ip_address()
     return "127.0.0.1" if set(ctx.node_ips) <= {here} else here
@@ -137,7 +139,7 @@ def actor_options(ctx: RayContext, resource: str, amount: float, num_cpus: float
 
 
 def shutdown(ctx: RayContext | None) -> None:
-    import ray
+    import ray  # lazy: heavy (ray), only in the Ray modes
 
     if ctx is not None and ray.is_initialized():
         ray.shutdown()

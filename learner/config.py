@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 from dataclasses import dataclass, field
 from typing import ClassVar, Literal, get_args, get_origin, get_type_hints
 
@@ -148,7 +149,6 @@ class RunConfig:
         """Torch threads of each learner process (`--learner.threads`, or what is left of this machine)."""
         if self.learner.threads > 0:
             return self.learner.threads
-        import os
 
         local_actors = self.actors.num_actors * self.actors.num_cpus if self.mode != "cluster" else 0
         local_learners = self.learner.replicas if self.mode != "cluster" else 1
@@ -182,9 +182,9 @@ _FLAT_RETARGET = {"retarget_root_height": "root_height", "retarget_body_clearanc
 
 
 def _task_sections(raw: dict) -> dict:
-    """A task config written before each task had its own section (one flat TaskConfig, up to
-    session 21): its body and shape-task keys move into `body` and `imitate`, so the shipped
-    checkpoints and old runs load with the settings they were trained with."""
+    """A task config in the flat layout (one TaskConfig without `body` and `imitate` sections):
+    its body and shape-task keys move into `body` and `imitate`, so the shipped checkpoints and
+    runs saved in that layout load with the settings they were trained with."""
     raw = dict(raw)
     for section, names in (("body", _field_names(BodyConfig)), ("imitate", _field_names(ImitateConfig) | set(_FLAT_RETARGET))):
         moved = {name: raw.pop(name) for name in names if name in raw}

@@ -28,8 +28,10 @@ would decay to zero at every stage's end, so it is refused.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import json
+import logging
 import re
 from dataclasses import dataclass
 from decimal import Decimal, InvalidOperation
@@ -89,7 +91,7 @@ def check_stages(stages: list[Stage]) -> list[Stage]:
 def run_state(run_dir: Path) -> tuple[int, dict | None]:
     """(environment steps, resolved config) of the run's newest loadable checkpoint; (0, None)
     without one."""
-    from learner import checkpoint
+    from learner import checkpoint  # lazy: start-up time of morphmimic curriculum --help (torch)
 
     latest = checkpoint.load_latest(run_dir / "ckpt")
     if latest is None:
@@ -102,8 +104,6 @@ def run_state(run_dir: Path) -> tuple[int, dict | None]:
 def mismatch(saved: dict, cfg) -> str | None:
     """The first `_SAME_RUN` field in which the checkpoint's config `saved` differs from `cfg`,
     as "field: checkpoint X, command Y"; None if they agree."""
-    import dataclasses
-
     mine = dataclasses.asdict(cfg)
     for path in _SAME_RUN:
         a, b = saved, mine
@@ -150,9 +150,8 @@ def main(argv: list[str]) -> int:
     if owned:
         refuse(PROG, f"{owned[0].split('=')[0]} is set by each stage (--stages S:N); leave it out after --")
 
-    import logging
-
-    from learner import main as learner_main
+    from learner import main as learner_main  # lazy: start-up time of morphmimic curriculum --help (torch)
+    # lazy: start-up time of morphmimic curriculum --help (torch, tensorboard)
     from learner.train import STOP_BUDGET, train_until_stop
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
@@ -169,7 +168,7 @@ def main(argv: list[str]) -> int:
     own = saved is not None
     if not own and cfg.resume not in ("auto", "never"):
         # a fork: the stages count from the forked checkpoint's steps
-        from learner import checkpoint
+        from learner import checkpoint  # lazy: start-up time of morphmimic curriculum --help (torch)
 
         try:
             done = int(checkpoint.load(Path(cfg.resume)).get("env_steps", 0))

@@ -45,9 +45,11 @@ import numpy as np
 import torch
 
 from common.config_limits import SEED, Limit, above, at_least, check_limits, validated
-from common.tasks.executor.env import pd_lead_s, pd_target
+from common.policy import anneal_log_std
+from common.tasks.executor.env import ExecutorEnv, pd_lead_s, pd_target
 from learner import checkpoint
 from learner.cli_options import parse_options, refuse
+from learner.learner import Learner
 
 
 class TorqueLabeler:
@@ -103,10 +105,6 @@ def distill(loaded, out: str | Path, rounds: int = 6, steps_per_round: int = 20_
             epochs: int = 20, lr: float = 1e-3, seed: int = 0, log=print) -> Path:
     """DAgger from the PD executor checkpoint `loaded` (`load_teacher`) into a torque executor
     checkpoint at `out` (`out/ckpt/<iteration>/state.pt`); returns the checkpoint directory."""
-    from common.policy import anneal_log_std
-    from common.tasks.executor.env import ExecutorEnv
-    from learner.learner import Learner
-
     cfg = loaded.cfg
     student_task = dataclasses.replace(cfg.task, executor=dataclasses.replace(cfg.task.executor, actuation="torque"))
     student_cfg = dataclasses.replace(cfg, task=student_task, name=Path(out).name, seed=seed, resume="auto")

@@ -14,6 +14,7 @@ from __future__ import annotations
 import logging
 import sys
 
+from common.tasks.registry import task_check, task_clips, task_space
 from learner.cli_options import parse_options, scan_flag, short_help
 from learner.config import RunConfig
 from learner.presets import PRESETS
@@ -53,8 +54,7 @@ def parse(argv: list[str]) -> RunConfig:
                         default=PRESETS[preset][1])
     try:
         # The task's own checks (its parameter space, its clips) before any run folder exists.
-        from common.tasks.registry import task_check, task_clips, task_space
-        from sampler.plot import map_axes
+        from sampler.plot import map_axes  # lazy: start-up time of --help (matplotlib)
 
         space = task_space(cfg.task)
         if cfg.sampler.plot_params:
@@ -70,7 +70,7 @@ def parse(argv: list[str]) -> RunConfig:
 def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     cfg = parse(list(sys.argv[1:] if argv is None else argv))
-    from learner.train import train  # after parsing, so --help is fast
+    from learner.train import train  # lazy: start-up time of --help (tensorboard, the actors, the sampler)
 
     return train(cfg)
 

@@ -65,7 +65,7 @@ class PPOConfig:
     value_normalization: bool = True
     """Train the value net on standardized returns (running statistics, PopArt's output-preserving
     rescale: `common.policy.ValueNet`). Off: raw returns, whose gradient was about 100 times the
-    policy's with returns of about 100 (the old behaviour, for the comparison)."""
+    policy's with returns of about 100 (for the comparison)."""
 
     FLAG_PREFIX: ClassVar[str] = "ppo"
     LIMITS: ClassVar[dict[str, Limit]] = {
@@ -231,8 +231,8 @@ class PPO:
         T, B = batch.rewards.shape
         flat = lambda x: x.reshape(T * B, *x.shape[2:])  # noqa: E731
         # NOTE: the observation statistics move only after the epochs: the actors' log-probabilities
-        # were taken with these, so the first minibatch's ratio is 1 (it was not, by the
-        # normalizer's own step, when they moved first).
+        # were taken with these, so the first minibatch's ratio is 1 (moving them first would
+        # shift it by the normalizer's own step).
         with torch.no_grad():
             obs_n = normalizer(flat(batch.obs))
             values = value(obs_n)

@@ -8,6 +8,11 @@ from __future__ import annotations
 import dataclasses
 
 from actors.config import ActorConfig
+from common.policy import PolicyConfig
+from common.tasks.executor.presets import VARIANTS as EXECUTOR_VARIANTS
+from common.tasks.executor.presets import executor_task
+from common.tasks.shape.presets import SHAPE_TASKS, shape_task
+from common.tasks.shape.presets import VARIANTS as SHAPE_VARIANTS
 from learner.config import RunConfig
 from learner.ppo import PPOConfig
 from sampler.config import SamplerConfig
@@ -58,10 +63,6 @@ def _shape_preset(character: str, variant: str = "") -> RunConfig:
     policy variance controller from -1.0 to -1.5 over 5 M steps at lr 1e-4 (MASS's default); a
     learned log-std collapsed and moved the policy by KL 1.8-4 per update. The policy stops for
     the rest of an update once a minibatch's KL passes 0.1 (`kl_stop`; the value net trains on)."""
-    from common.policy import PolicyConfig
-    from common.tasks.shape.presets import SHAPE_TASKS, shape_task
-    from learner.ppo import PPOConfig
-
     return RunConfig(
         name=f"{character}-{variant}" if variant else character,
         total_env_steps=20_000_000,
@@ -78,10 +79,8 @@ def _shape_preset(character: str, variant: str = "") -> RunConfig:
 
 
 def _add_shape_presets() -> None:
-    from common.tasks.shape.presets import SHAPE_TASKS, VARIANTS
-
     for character, (_, _, _, text) in SHAPE_TASKS.items():
-        for variant, vtext in VARIANTS.items():
+        for variant, vtext in SHAPE_VARIANTS.items():
             cfg = _shape_preset(character, variant)
             PRESETS[cfg.name] = (f"{text}; {vtext}", cfg)
 
@@ -108,10 +107,6 @@ def _executor_preset(variant: str = "") -> RunConfig:
     std -2 and is annealed to -2.5 over 20 M steps: at -1 random torques alone broke the
     joint-velocity term within one control step. lr 5e-5 with decoupled PPO's proximal anchor
     (`--ppo.proximal-anchor`): at 2e-4 half of every batch fell outside the clip range."""
-    from common.policy import PolicyConfig
-    from common.tasks.executor.presets import executor_task
-    from learner.ppo import PPOConfig
-
     return RunConfig(
         name=f"executor-{variant}" if variant else "executor",
         total_env_steps=50_000_000,
@@ -129,9 +124,7 @@ def _executor_preset(variant: str = "") -> RunConfig:
 
 
 def _add_executor_presets() -> None:
-    from common.tasks.executor.presets import VARIANTS
-
-    for variant, vtext in VARIANTS.items():
+    for variant, vtext in EXECUTOR_VARIANTS.items():
         cfg = _executor_preset(variant)
         PRESETS[cfg.name] = (f"UniCon motion executor on the DeepMimic humanoid over its clip library; {vtext}", cfg)
 

@@ -69,7 +69,7 @@ def _join_watching_replicas(init_method: str, world: int, learner: Learner, join
     """Join the group as rank 0 while watching the replicas' own join calls, so that a replica
     that fails to start (its constructor raised, no node can host it) is reported at once with
     its own error, not as a rendezvous timeout `timeout_s` later."""
-    import ray
+    import ray  # lazy: heavy (ray), only with more than one learner replica
 
     failure: list[BaseException] = []
 
@@ -108,7 +108,7 @@ class ReplicaGroup:
         world = cfg.learner.replicas
         if world == 1:
             return None
-        import ray
+        import ray  # lazy: heavy (ray), only with more than one learner replica
 
         init_method = data_parallel.rendezvous(host, run_dir)
         options = cluster.actor_options(ctx, cluster.LEARNER_RESOURCE, 1.0, 0.0) if ctx is not None else {}
@@ -133,25 +133,25 @@ class ReplicaGroup:
         return group
 
     def start_update(self, batch: Batch, env_steps: int) -> list:
-        import ray
+        import ray  # lazy: heavy (ray), only with more than one learner replica
 
         ref = ray.put(batch)
         return [h.update.remote(ref, env_steps) for h in self.handles]
 
     def finish_update(self, pending: list, timeout_s: float | None = None) -> None:
         """Wait for the replicas' share of the update; a replica's error is raised here."""
-        import ray
+        import ray  # lazy: heavy (ray), only with more than one learner replica
 
         ray.get(pending, timeout=self.learner.cfg.learner.sync_timeout_s if timeout_s is None else timeout_s)
 
     def parameters(self) -> list[np.ndarray]:
         """Each replica's parameters, rank 1 first (for tests and checks)."""
-        import ray
+        import ray  # lazy: heavy (ray), only with more than one learner replica
 
         return ray.get([h.parameters.remote() for h in self.handles])
 
     def stop(self) -> None:
-        import ray
+        import ray  # lazy: heavy (ray), only with more than one learner replica
 
         data_parallel.leave()
         for h in self.handles:

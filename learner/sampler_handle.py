@@ -19,6 +19,8 @@ from common.curve_keys import LEARNER, RunKeys
 from common.params import ParamSpace
 from common.rpc import ServiceUnavailable
 from common.wire import WireError
+from learner import cluster
+from sampler.actor import SamplerActor, start_in_thread
 from sampler.client import SamplerClient
 from sampler.config import SamplerConfig
 
@@ -58,15 +60,10 @@ class SamplerHandle:
             return SamplerClient(endpoint, timeout_s=LEARNER_TIMEOUT_S, retries=2, keys=keys, role=LEARNER)
 
         if ctx is None:
-            from sampler.actor import start_in_thread
-
             service, thread, stop_event = start_in_thread(config, space, clips, keys=service_keys)
             endpoint = service.endpoint
             return SamplerHandle(endpoint, client(endpoint), config, space, clips, thread=thread, stop_event=stop_event)
-        import ray
-
-        from learner import cluster
-        from sampler.actor import SamplerActor
+        import ray  # lazy: heavy (ray), only in the Ray modes
 
         opts = cluster.actor_options(ctx, cluster.SAMPLER_RESOURCE, 0.01, 0.0)
         opts.pop("scheduling_strategy", None)
@@ -124,7 +121,7 @@ class SamplerHandle:
     def plot(self, path: Path) -> None:
         """Write the Vm map PNG (Won & Lee 2019, Figure 6) from the service's current state; a fixed
         body has no map, and its state is not fetched."""
-        from sampler.plot import has_map, plot_state
+        from sampler.plot import has_map, plot_state  # lazy: heavy (matplotlib), only when plotting
 
         params = self.config.plot_params or None
         try:
@@ -142,7 +139,7 @@ class SamplerHandle:
             self.stop_event.set()
             self.thread.join(timeout=5)
         if self.ray_handle is not None:
-            import ray
+            import ray  # lazy: heavy (ray), only in the Ray modes
 
             try:
                 ray.get(self.ray_handle.stop.remote(), timeout=10)

@@ -277,10 +277,9 @@ def train_until_stop(cfg: RunConfig, on_iteration: Callable[[Run, dict[str, floa
 
 def _save_on_crash(run: Run, exc: Exception) -> None:
     """An unexpected exception in the loop: write a checkpoint of the iterations done since the
-    last one before the exception ends the process (a crash used to lose up to
-    `checkpoint_every - 1` iterations). NOTE: an exception inside the PPO update may leave that
-    iteration's minibatch steps partly applied; the checkpoint keeps them, under the number of
-    the last completed iteration."""
+    last one before the exception ends the process, so a crash loses none of them. NOTE: an
+    exception inside the PPO update may leave that iteration's minibatch steps partly applied;
+    the checkpoint keeps them, under the number of the last completed iteration."""
     if run.learner.iteration == run.last_saved:
         return
     run.out.line(f"[morphmimic] {type(exc).__name__} in the training loop at iteration {run.learner.iteration}: "

@@ -50,7 +50,7 @@ class SamplerActor:
     def __init__(self, config: SamplerConfig, space: ParamSpace, clips: Sequence[tuple[str, str]] | None = None,
                  keys: RunKeys | None = None):
         if config.host == "auto":
-            import ray  # only a Ray actor resolves "auto"; serial mode never needs ray
+            import ray  # lazy: heavy (ray), only a Ray actor resolves "auto"; serial mode never needs ray
 
             config = dataclasses.replace(config, host=ray.util.get_node_ip_address())
         self.service, self._thread, self._stop = start_in_thread(config, space, clips, keys=keys)

@@ -196,8 +196,8 @@ class MarginalValue:
         The state may come from another box (a curriculum resumed at a new `shape_box_scale`):
         the net's input layer is re-expressed for this box so Vm keeps its value at every shape,
         and the probe points are drawn over this box (Vbar is Vm's average over the box being
-        trained). Returns True when the box changed. A state from before the box was saved
-        cannot be re-expressed; its probe points are redrawn over this box."""
+        trained). Returns True when the box changed. A state saved without its box cannot be
+        re-expressed; its probe points are redrawn over this box."""
         if tuple(meta["hidden"]) != self.hidden:
             raise ValueError(f"saved Vm has hidden sizes {meta['hidden']}, this one {list(self.hidden)}; "
                              "construct it with the saved vm_hidden")
@@ -215,7 +215,7 @@ class MarginalValue:
         self.fitted, self.steps = bool(meta["fitted"]), int(meta["steps"])
         self.pairs_seen, self.last_loss = int(meta["pairs_seen"]), float(meta["last_loss"])
         self.probe_std = float(meta.get("probe_std", 0.0))
-        if "low" not in meta:  # a state from before the box was saved: its box is unknown
+        if "low" not in meta:  # a state saved without its box: its box is unknown
             self.probe = self._uniform_probe()
             return False
         old_low, old_high = np.asarray(meta["low"], np.float64), np.asarray(meta["high"], np.float64)

@@ -98,4 +98,48 @@ def test_the_architecture_table_says_the_same() -> None:
 
 def test_the_reader_sees_imports_inside_functions() -> None:
     """A check of the reader itself: a known import inside a function is found."""
-    assert "common.tasks.registry" in GRAPH["learner.main"], sorted(GRAPH["learner.main"])
+    assert "learner.train" in GRAPH["learner.main"], sorted(GRAPH["learner.main"])
+
+
+LAZY_EXEMPT = {
+    "common/tasks/base.py", "common/tasks/registry.py", "common/tasks/batch.py", "common/tasks/executor/env.py",
+    "common/tasks/executor/observations.py", "common/tasks/executor/rewards.py", "common/tasks/shape/env.py",
+    "actors/rollout.py", "learner/bench/env_steps.py", "learner/bench/throughput.py",
+}
+"""TEMPORARY: files being rewritten for batched environments on another branch; they get their
+`# lazy:` comments when that work is merged, and this set goes."""
+LAZY_EXEMPT_DIRS = ("learner/evaluation/",)
+"""TEMPORARY, as `LAZY_EXEMPT`: the evaluation package is being rewritten on another branch."""
+
+
+def _function_imports(path: Path) -> list[int]:
+    """Line numbers of the import statements inside a function (or lambda) of `path`."""
+    found = []
+
+    def visit(node: ast.AST, in_function: bool) -> None:
+        for child in ast.iter_child_nodes(node):
+            if in_function and isinstance(child, (ast.Import, ast.ImportFrom)):
+                found.append(child.lineno)
+            visit(child, in_function or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)))
+
+    visit(ast.parse(path.read_text(), str(path)), False)
+    return found
+
+
+def test_imports_inside_functions_say_why() -> None:
+    """An import inside a function stays there only for a reason (a heavy dependency used on one
+    path, the start-up time of a command's --help, an import order, an optional part) and says
+    which in a `# lazy: <reason>` comment on its line or the line above; every other import
+    belongs at the top of its module."""
+    unexplained = []
+    for name, path in MODULES.items():
+        rel = path.relative_to(ROOT).as_posix()
+        if _layer(name) in OUTSIDE or rel in LAZY_EXEMPT or rel.startswith(LAZY_EXEMPT_DIRS):
+            continue
+        lines = path.read_text().splitlines()
+        for lineno in _function_imports(path):
+            here, above = lines[lineno - 1], lines[lineno - 2] if lineno > 1 else ""
+            if "# lazy:" not in here and not above.strip().startswith("# lazy:"):
+                unexplained.append(f"{rel}:{lineno}: {here.strip()}")
+    assert not unexplained, ("imports inside functions without a `# lazy: <reason>` comment (move them to the "
+                             "top of the module, or say why they wait):\n" + "\n".join(unexplained))

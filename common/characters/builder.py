@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from common.characters.shape_space import BodyPart, ShapeSpace
 
@@ -216,8 +217,6 @@ def quat_from_matrix(mat: np.ndarray) -> list[float]:
     """Rotation matrix [3, 3] -> MuJoCo quaternion (w, x, y, z); the nearest rotation is used
     (source data sometimes rounds its matrices) and a reflection is turned into a rotation by
     flipping one axis, which a box, ellipsoid or capsule does not notice."""
-    from scipy.spatial.transform import Rotation
-
     mat = np.asarray(mat, dtype=float)
     if np.linalg.det(mat) < 0:
         mat = mat @ np.diag([1.0, 1.0, -1.0])

@@ -19,8 +19,9 @@ import numpy as np
 from common.characters.builder import FLOOR_NAME, BaseCharacter
 from common.characters.errors import ShapeError
 from common.characters.operator import BaseGeometry, apply_scales, unscalable
-from common.characters.pose_solve import PoseSolveConfig, solve_standing_pose
+from common.characters.pose_solve import PoseSolveConfig, foot_points_world, lower_vertices, solve_standing_pose
 from common.characters.presets import PRESETS
+from common.characters.presets.mjcf import build as build_mjcf
 from common.characters.shape_space import ShapeSpace
 
 DEFAULT_TIMESTEP_S = 1.0 / 480.0
@@ -134,8 +135,6 @@ class Character:
     def leg_lengths_m(self) -> np.ndarray:
         """Per leg (order of `base.legs`): height of the hip joint above the foot's lowest
         vertex at the rest pose (all joints zero, legs hanging straight), [n_legs] m."""
-        from common.characters.pose_solve import foot_points_world, lower_vertices
-
         data = mujoco.MjData(self.model)
         mujoco.mj_kinematics(self.model, data)
         out = []
@@ -189,8 +188,6 @@ def build_base(preset: str, timestep_s: float = DEFAULT_TIMESTEP_S) -> BaseChara
     """The unshaped base character B for a preset name or "mjcf:<path>" / "<path>.xml" / the path
     of any existing file (MuJoCo decides whether it is MJCF)."""
     if preset.startswith("mjcf:") or preset.endswith(".xml") or (preset not in PRESETS and Path(preset).exists()):
-        from common.characters.presets.mjcf import build as build_mjcf
-
         return build_mjcf(preset.removeprefix("mjcf:"), timestep_s)
     if preset not in PRESETS:
         raise ShapeError(f"unknown character preset {preset!r}; choose one of {', '.join(PRESETS)} "

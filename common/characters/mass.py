@@ -4,10 +4,10 @@ live session's mass slider change a model's masses in place rather than recompil
 MuJoCo derives several fields from the masses when a model is compiled (`mj_setConst`): each
 body's subtree mass, by which `data.subtree_com` divides, and the inverse weights and actuator
 accelerations that set how soft constraints and contacts are. Writing `body_mass` alone leaves
-them at the old masses: every centre of mass came out `factor` times too far from the origin (at
-x0.5 the executor's COM term read 0.03 for a pose that scored 0.66 unscaled), so the mass rows of
-the robustness table measured the broken COM, not the body. `set_body_mass` writes the masses
-and recomputes those fields, as a compile with those masses would.
+them at the compiled masses: every centre of mass comes out `factor` times too far from the
+origin (at x0.5 the executor's COM term reads 0.03 for a pose that scores 0.66 unscaled), and
+the mass rows of the robustness table would measure that error, not the body. `set_body_mass`
+writes the masses and recomputes those fields, as a compile with those masses would.
 """
 
 from __future__ import annotations

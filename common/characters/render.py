@@ -10,6 +10,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import imageio.v3 as iio
+import mujoco
+import numpy as np
+
+from common.characters.character import extent
 from common.offscreen_gl import use_offscreen_context
 
 
@@ -18,12 +23,6 @@ def render_png(ch, path: str | Path | None = None, data=None, width: int = 640, 
     """Render `ch` (a Character) at `data` (default: its standing pose) from a free camera that
     frames the whole body (elevation default: -15 deg, -35 for swimmers so their flat bodies
     show); write a PNG to `path` if given. Returns the image [H, W, 3] uint8."""
-    import imageio.v3 as iio
-    import mujoco
-    import numpy as np
-
-    from common.characters.character import extent
-
     use_offscreen_context()
     model = ch.model
     data = ch.make_data() if data is None else data

@@ -27,8 +27,11 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from common.motion.bvh import parse_bvh
 from common.motion.clip import Clip
+from common.motion.cross_skeleton import retarget_bvh
 from common.motion.errors import ClipError
+from common.motion.library import CLIPS_DIR
 from common.motion.manifest import CLIPS_JSON
 
 ID_PREFIX = "humanoid/bandai/"
@@ -105,9 +108,6 @@ def find_takes(root: str | Path) -> tuple[list[Take], list[tuple[Path, str]]]:
 
 def convert_take(take: Take) -> Clip:
     """One take retargeted onto the humanoid, labelled, with its provenance in `extra`."""
-    from common.motion.bvh import parse_bvh
-    from common.motion.cross_skeleton import retarget_bvh
-
     clip = retarget_bvh(parse_bvh(take.path), skeleton="bandai", character="humanoid", name=take.clip_id,
                         label=take.label, license=LICENSE, loop=False)
     return clip.with_(source=f"bvh:{take.path.name}", extra={**clip.extra, "source_path": take.source,
@@ -134,8 +134,6 @@ def import_bandai(root: str | Path, out_dir: str | Path | None = None, manifest:
     `common/data/clips/`) as `humanoid/bandai/<take>.npz`, float32 compressed, and put their
     entries into `manifest` (None: leave it). Returns (clips, failures); a take that fails is
     reported with its reason and left out, the others are still written."""
-    from common.motion.library import CLIPS_DIR
-
     out_dir = Path(out_dir) if out_dir else CLIPS_DIR
     takes, failures = find_takes(root)
     clips, entries = [], []

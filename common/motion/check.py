@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from common.motion.reference import CharacterMotion
 from common.motion.root_height import foot_heights, lowest_points
@@ -137,7 +138,6 @@ def check_motion(motion: CharacterMotion, foot_geoms: tuple[str, ...], contact_f
     else:
         penetration = stance_float = airborne = lowest_max = lowest_mean = 0.0
     count, worst, worst_name = 0, 0.0, "-"
-    from scipy.spatial.transform import Rotation
 
     for name, j, axis, lo, hi in _dof_ranges(model):
         adr = model.jnt_qposadr[j]

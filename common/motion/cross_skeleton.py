@@ -49,6 +49,7 @@ import functools
 from dataclasses import dataclass
 from pathlib import Path
 
+import mujoco
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -58,6 +59,9 @@ from common.motion.clip import Clip
 from common.motion.errors import ClipError
 from common.motion.import_bvh import BVH_TO_MUJOCO, CMU_SCALE_M, MASS_SCALE_M, TargetJoint, bvh_to_clip, hinge_twist
 from common.motion.import_deepmimic import HUMANOID_JOINTS
+from common.motion.qpos_map import QposMap
+from common.motion.retarget import ContactPhases, RetargetConfig, retarget_qpos
+from common.motion.root_height import foot_heights
 
 # A direction at rest (`Segment`): `(from, to)` joint (source) or body (humanoid) names, the
 # rest position of `to` minus that of `from`; a world axis of the Z-up frame (`AXES`); or a
@@ -242,10 +246,9 @@ class _Target:
 def _target(character: str) -> _Target:
     if character not in TARGETS:
         raise ClipError(f"cannot retarget a BVH onto character {character!r}; targets: {', '.join(map(repr, TARGETS))}")
-    import mujoco
 
+    # lazy: start-up time of train --help, which loads common.motion (common.characters adds scipy.optimize)
     from common.characters import load_character
-    from common.motion.root_height import foot_heights
 
     ch = load_character(character)
     m = ch.model
@@ -393,7 +396,7 @@ def aim_bend_plane(want_b: Rotation, want_c: Rotation, d_b: np.ndarray, d_c: np.
     A hinge keeps only the twist of the child's rotation about its axis; where the source's
     knee or elbow bends in another plane than the one the humanoid's hinge axis allows (a
     different twist convention of the source's upper arm, swing in a source's knee), the
-    child's bone would miss its direction (measured before this: up to 41 degrees on the MASS
+    child's bone would miss its direction (without the turn: up to 41 degrees on the MASS
     pirouette's elbows, 22 on average on the CMU clip's). Turning b about its bone by the angle
     that puts the hinge axis along +-(u x w) (u: b's bone, w: the child's bone's component
     across u; the sign from the hinge's one-sided range) keeps b's bone direction and lets the
@@ -570,10 +573,6 @@ def plant_feet(clip: Clip, character: str = "humanoid", cfg: FloorConfig = Floor
     foot against the local floor (`floor_contacts`), then retarget.py's per-frame root offset
     (the highest contact foot at 0, interpolated across flight) and leg pose solve (any foot
     below the floor lifted onto it). `extra["contact_frac"]` records each foot's contact share."""
-    from common.motion.qpos_map import QposMap
-    from common.motion.retarget import ContactPhases, RetargetConfig, retarget_qpos
-    from common.motion.root_height import foot_heights
-
     target = _target(character)
     model, feet = target.model, target.feet
     qpos = QposMap(clip, model).to_qpos(clip.root_pos, clip.root_quat, clip.joint_qpos)

@@ -19,6 +19,8 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+import mujoco
+
 from common.motion.clip import Clip, load_clip
 from common.motion.cross_skeleton import guess_skeleton, retarget_bvh
 from common.motion.errors import ClipError
@@ -26,6 +28,7 @@ from common.motion.import_bvh import load_bvh
 from common.motion.import_deepmimic import load_deepmimic
 from common.motion.mirror import check_symmetric, is_mirrored, mirror_clip, source_id
 from common.motion.manifest import DATA_DIR, ClipEntry, Manifest, load_manifest
+from common.motion.procedural import GENERATORS
 from common.motion.reference import CharacterMotion
 from common.motion.retarget import ContactPhases, RetargetConfig, character_feet, contact_phases, play_on
 
@@ -77,6 +80,7 @@ def clips_for(character: str, manifest: Manifest | None = None) -> list[tuple[st
     loads each. The procedural gaits (`procedural/<preset>`) are not manifest clips.
     Raises ClipError naming an unknown character preset.
     """
+    # lazy: start-up time of train --help, which loads common.motion (common.characters adds scipy.optimize)
     from common.characters.presets import PRESETS
 
     if character not in PRESETS:
@@ -99,8 +103,6 @@ class MotionLibrary:
     @property
     def ids(self) -> tuple[str, ...]:
         """Manifest clip ids, then the procedural gaits."""
-        from common.motion.procedural import GENERATORS
-
         return tuple(e.id for e in self.manifest.entries) + tuple(f"procedural/{p}" for p in GENERATORS)
 
     def clip(self, clip_id: str) -> Clip:
@@ -112,8 +114,6 @@ class MotionLibrary:
             if is_mirrored(clip_id):
                 self._clips[clip_id] = self._mirror(source_id(clip_id))
             elif clip_id.startswith("procedural/"):
-                from common.motion.procedural import GENERATORS
-
                 preset = clip_id.split("/", 1)[1]
                 if preset not in GENERATORS:
                     raise ClipError(f"no procedural motion for {preset!r}; choose one of {', '.join(GENERATORS)}", path=clip_id)
@@ -126,8 +126,6 @@ class MotionLibrary:
     def _mirror(self, source: str) -> Clip:
         """The mirror image of clip `source`, after checking that its character's rest pose is
         left-right symmetric (`mirror.check_symmetric`)."""
-        import mujoco
-
         clip = self.clip(source)
         if not clip.character:
             raise ClipError("a clip bound to no character cannot be mirrored (its rest pose is unknown)", path=source)
@@ -140,6 +138,7 @@ class MotionLibrary:
     def base_character(self, preset: str):
         """The preset at its default shape (cached)."""
         if preset not in self._bases:
+            # lazy: start-up time of train --help, which loads common.motion (common.characters adds scipy.optimize)
             from common.characters import load_character
 
             self._bases[preset] = load_character(preset)

@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from common.motion.cross_skeleton import SOURCE_SKELETONS, TARGETS
 from common.motion.errors import ClipError
 
 DATA_DIR = Path(__file__).resolve().parent.parent / "data"
@@ -145,8 +146,6 @@ def load_manifest(path: str | Path = CLIPS_JSON) -> Manifest:
 
 def _character_fields(c: dict, k: int, fmt: str, path: Path) -> tuple[str, str | None]:
     """(character, retarget_from) of a manifest entry, validated (module docstring)."""
-    from common.motion.cross_skeleton import SOURCE_SKELETONS, TARGETS
-
     where = f"clip entry {k} ({c.get('id')!r})"
     native = NATIVE_CHARACTER.get(fmt, "")
     retarget_from = c.get("retarget_from")

@@ -116,8 +116,8 @@ def clearance_lift(model: mujoco.MjModel, qpos: np.ndarray, foot_geoms: tuple[st
     `ImitateConfig.shin_contact_is_fall`). Each frame's deficit is spread as a tent over
     `ramp_frames` frames on each side (the largest tent wins), so the root rises and settles
     continuously. Under Won & Lee's fall rule (any floor contact but a foot's) a reference
-    whose shin reaches the floor asks for a fall; on the lower biped's evaluation shapes MASS's
-    shank box dipped to the floor at heel strike and toe-off (the slimmer box of 2026-12-04 does not)."""
+    whose shin reaches the floor asks for a fall; a shank box that is deep for its shape dips to
+    the floor at heel strike and toe-off (docs/experiments/2026-12-04-lower-biped-shank.md)."""
     n = len(qpos)
     roots = {int(model.geom(f).bodyid[0]) for f in foot_geoms}
     if shins_may_touch:
@@ -175,6 +175,7 @@ def play_on(clip: Clip, character, base_character=None, cfg: RetargetConfig = Re
     feet = character_feet(character)
     ees = tuple(getattr(character, "end_effector_bodies", ()))
     if base_character is None:
+        # lazy: start-up time of train --help, which loads common.motion (common.characters adds scipy.optimize)
         from common.characters import load_character
 
         base_character = load_character(character.preset)

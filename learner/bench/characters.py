@@ -49,8 +49,9 @@ def _ms(fn, n: int) -> float:
 
 
 def bench_preset(preset: str, n_shapes: int, n_control: int, timestep_s: float | None, seed: int) -> dict:
-    import mujoco
+    import mujoco  # lazy: start-up time of morphmimic bench characters --help (mujoco)
 
+    # lazy: start-up time of morphmimic bench characters --help (mujoco, scipy)
     from common.characters import CharacterFactory, load_character, morph
 
     rng = np.random.default_rng(seed)
@@ -92,6 +93,7 @@ def bench_preset(preset: str, n_shapes: int, n_control: int, timestep_s: float |
 
 
 def main(argv: list[str]) -> int:
+    # lazy: start-up time of morphmimic bench characters --help (mujoco, scipy)
     from common.characters import list_presets
 
     args = parse_options(CharacterBenchOptions, argv, prog="morphmimic bench characters",

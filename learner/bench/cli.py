@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from learner.cli import dispatch
+
 
 BENCHMARKS: dict[str, tuple[str, str]] = {
     "throughput": ("learner.bench.throughput", "end-to-end collection vs pure simulation, learner share, transport bytes/s"),
@@ -20,6 +22,4 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
 
 
 def main(argv: list[str]) -> int:
-    from learner.cli import dispatch
-
     return dispatch("morphmimic bench", "benchmark", BENCHMARKS, argv)

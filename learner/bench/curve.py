@@ -21,6 +21,7 @@ import zmq
 from common import sockets, wire
 from common.config_limits import Limit, at_least, check_limits, validated
 from common.curve_keys import LEARNER, RunKeys
+from common.tasks.registry import make_env
 from learner.cli_options import parse_options
 from learner.presets import PRESETS, check_presets
 
@@ -100,8 +101,6 @@ def main(argv: list[str]) -> int:
     cfg = PRESETS[args.preset][1]
     obs_dim, act_dim, n_params = args.obs_dim, 2, 1
     if not obs_dim:
-        from common.tasks.registry import make_env
-
         env = make_env(cfg.task, seed=0)
         obs_dim, act_dim, n_params = env.obs_dim, env.act_dim, env.space.dim
     T, N = cfg.actors.unroll_length, cfg.actors.envs_per_actor

@@ -26,8 +26,8 @@ SHAPE_TASKS = ("lower_biped", "quadruped", "biped", "fish", "manta")
 
 
 def bench_task(name: str, resets: int, steps: int, seed: int) -> dict[str, float]:
-    from common.tasks.registry import make_env
-    from learner.presets import PRESETS
+    from common.tasks.registry import make_env  # lazy: start-up time of morphmimic bench episodes --help (mujoco)
+    from learner.presets import PRESETS  # lazy: start-up time of morphmimic bench episodes --help (torch)
 
     env = make_env(PRESETS[name][1].task, seed=seed)
     rng = np.random.default_rng(seed)

@@ -32,6 +32,7 @@ from typing import ClassVar
 from common.config_limits import Limit, at_least, check_limits, validated
 from learner.bench.throughput import end_to_end
 from learner.cli_options import CommaInts, parse_options, refuse
+from learner.cluster import start_test_cluster as start
 from learner.config import LearnerConfig, RunConfig
 from learner.presets import PRESETS, check_presets
 
@@ -82,10 +83,10 @@ def write(out: Path, meta: dict, rows: list[dict]) -> None:
 
 
 def _plot(path: Path, meta: dict, rows: list[dict]) -> None:
-    import matplotlib
+    import matplotlib  # lazy: heavy (matplotlib), only when plotting
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # lazy: heavy (matplotlib), only when plotting
 
     fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4))
     for r in sorted({row["replicas"] for row in rows}):
@@ -150,8 +151,6 @@ def main(argv: list[str]) -> int:
     cluster = None
     address = args.address
     if not address:
-        from learner.cluster import start_test_cluster as start
-
         cluster = start(rollout_per_worker=1, cpus_per_worker=1, learner_slots=max(args.replicas) - 1,
                         workers=max(args.actors))
         address = cluster.address

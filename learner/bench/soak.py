@@ -29,6 +29,7 @@ import zmq
 from common import curve_keys
 from common.config_limits import SEED, Limit, above, between, check_limits, validated
 from learner.cli_options import parse_options
+from learner.cluster import start_test_cluster as start
 from learner.presets import PRESETS, check_presets
 
 
@@ -66,10 +67,9 @@ class SoakBenchOptions:
 def main(argv: list[str]) -> int:
     args = parse_options(SoakBenchOptions, argv, prog=PROG, description=__doc__)
 
-    import ray
+    import ray  # lazy: heavy (ray), after parsing so --help is fast
 
-    from learner.cluster import start_test_cluster as start
-    from learner.train import Run, train
+    from learner.train import Run, train  # lazy: start-up time of --help (tensorboard, the actors)
 
     rng = np.random.default_rng(args.seed)
     injected: collections.Counter[str] = collections.Counter()

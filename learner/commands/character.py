@@ -18,6 +18,8 @@ from typing import ClassVar
 
 import tyro
 
+from common.characters import ShapeError, list_presets, load_character
+from common.characters.character import build_base
 from common.config_limits import Limit, above, check_limits, validated
 from learner.cli_options import parse_options
 
@@ -60,9 +62,6 @@ def _parse_shape(text: str | None) -> dict[str, str]:
 
 
 def main(argv: list[str]) -> int:
-    from common.characters import ShapeError, list_presets, load_character
-    from common.characters.character import build_base
-
     description = f"{__doc__.split(chr(10) * 2)[0]}\n\npresets: {', '.join(list_presets())}"
     args = parse_options(CharacterOptions, argv,
                          prog="morphmimic character", description=description)
@@ -92,7 +91,7 @@ def main(argv: list[str]) -> int:
                 ch.spec.delete(key)
             print(f"wrote {args.mjcf}")
         if args.png:
-            from common.characters.render import render_png
+            from common.characters.render import render_png  # lazy: heavy (imageio), only with --png
 
             Path(args.png).parent.mkdir(parents=True, exist_ok=True)
             render_png(ch, args.png)

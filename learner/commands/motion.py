@@ -19,9 +19,18 @@ import numpy as np
 import tyro
 
 from common.config_limits import SEED, Limit, above, at_least, check_limits, validated
-
+from common.motion import bandai
+from common.motion.check import check_motion
+from common.motion.cross_skeleton import naive_clip
 from common.motion.errors import ClipError
+from common.motion.library import CLIPS_DIR, MotionLibrary, import_entry, import_source
+from common.motion.manifest import DATA_DIR
+from common.motion.mirror import MIRROR_SUFFIX, source_id
+from common.motion.procedural import GENERATORS
+from common.motion.reference import CharacterMotion
+from common.motion.retarget import character_feet, contact_phases, play_on
 from common.motion.root_height import ROOT_HEIGHT_RULES
+from learner.cli import dispatch
 from learner.cli_options import parse_options
 
 
@@ -138,10 +147,6 @@ class CheckOptions(_OnACharacter):
 
 def _resolve(lib, spec: str, character: str | None = None):
     """A clip from a manifest id or a file path (a BVH imported onto `character` when given)."""
-    from common.motion.library import import_source
-
-    from common.motion.mirror import MIRROR_SUFFIX, source_id
-
     if source_id(spec) in lib.ids:
         return lib.clip(spec)
     if Path(spec).exists():
@@ -151,6 +156,7 @@ def _resolve(lib, spec: str, character: str | None = None):
 
 
 def _character(preset: str, args):
+    # lazy: start-up time of morphmimic motion --help (common.characters adds scipy.optimize)
     from common.characters import load_character
 
     shape = _parse_shape(args.shape)
@@ -161,20 +167,16 @@ def _character(preset: str, args):
 
 
 def cmd_import(args) -> int:
-    from common.motion.library import CLIPS_DIR, MotionLibrary, import_entry, import_source
-
     out_dir = Path(args.out) if args.out else CLIPS_DIR
     if args.bandai:  # the Bandai Namco takes onto the humanoid + their manifest entries
-        from common.motion.bandai import import_bandai
-
-        return 1 if import_bandai(args.bandai, args.out)[1] else 0
+        return 1 if bandai.import_bandai(args.bandai, args.out)[1] else 0
     jobs = []
     if args.all:
         lib = MotionLibrary()
         jobs += [(e.id, lambda e=e: import_entry(e)) for e in lib.manifest.entries]
     if args.procedural:
+        # lazy: start-up time of morphmimic motion --help (common.characters adds scipy.optimize)
         from common.characters import load_character
-        from common.motion.procedural import GENERATORS
 
         jobs += [(f"procedural/{p}", lambda p=p, g=g: g(load_character(p))) for p, g in GENERATORS.items()]
     for src in args.sources:
@@ -196,19 +198,16 @@ def cmd_import(args) -> int:
 
 
 def cmd_view(args) -> int:
-    from common.motion.library import MotionLibrary
-    from common.motion.retarget import play_on
-    from common.motion.view import write_animation, write_strip
-
     lib = MotionLibrary()
     clip = _resolve(lib, args.clip, args.character)
     preset = args.character or clip.character
     ch = _character(preset, args)
     motion = play_on(clip, ch, lib.base_character(preset)) if args.retarget else None
     if motion is None:
-        from common.motion.reference import CharacterMotion
-
         motion = CharacterMotion.from_clip(clip, ch.model, tuple(ch.end_effector_bodies))
+    # lazy: start-up time of morphmimic motion --help (imageio)
+    from common.motion.view import write_animation, write_strip
+
     out = Path(args.out)
     if out.suffix.lower() == ".png":
         write_strip(motion, out, n_frames=args.frames, seconds=args.seconds)
@@ -222,9 +221,6 @@ def _raw_clip(clip):
     """What `check` compares a clip with: the clip as recorded, or for a clip retargeted across
     skeletons (`extra["retarget_from"]`) its source BVH copied naively onto the same character
     (local rotations, no rest-pose correction, root as recorded: `cross_skeleton.naive_clip`)."""
-    from common.motion.cross_skeleton import naive_clip
-    from common.motion.manifest import DATA_DIR
-
     skeleton, source = clip.extra.get("retarget_from"), clip.extra.get("source_path")
     if not skeleton or not source:
         return clip
@@ -263,11 +259,6 @@ def cleaning_line(clip, model, filter_hz: float, floor: bool) -> str:
 
 
 def cmd_check(args) -> int:
-    from common.motion.check import check_motion
-    from common.motion.library import MotionLibrary
-    from common.motion.reference import CharacterMotion
-    from common.motion.retarget import character_feet, contact_phases, play_on
-
     lib = MotionLibrary()
     specs = list(args.clips) + (list(lib.ids) if args.all else [])
     specs = list(dict.fromkeys(specs))
@@ -332,7 +323,5 @@ def _runner(name: str):
 
 
 def main(argv: list[str]) -> int:
-    from learner.cli import dispatch
-
     table = {name: (_runner(name), text) for name, (_, _, text) in SUBCOMMANDS.items()}
     return dispatch("morphmimic motion", "subcommand", table, argv)

@@ -26,7 +26,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, ClassVar
 
+import imageio.v2 as imageio
+
 from common.config_limits import PORT, Limit, above, at_least, check_limits, validated
+from common.tasks.executor.schedulers.factory import make_scheduler
 from learner.cli_options import parse_options, value_list
 from learner.live.session import LiveSession, Scheduler, SessionOptions, number_pair, shape_pair, video_status
 
@@ -90,7 +93,6 @@ def make_session(args: PlayOptions) -> tuple[LiveSession, Any]:
         if session.kind != "executor":
             raise ValueError(f"--scheduler {args.scheduler}: schedulers drive the executor; "
                              f"{session.loaded.name} is a shape controller that follows its own clip")
-        from common.tasks.executor.schedulers.factory import make_scheduler
 
         options = {"stitch": {"clips": tuple(args.stitch)}, "keyboard": {"script": tuple(args.keys)},
                    "video": {"host": args.video_host, "port": args.video_port}}.get(args.scheduler, {})
@@ -116,7 +118,7 @@ def run_realtime(session: LiveSession, seconds: float, speed: float, viewer: boo
     steps = int(round(seconds / dt))
     handle = None
     if viewer:
-        import mujoco.viewer
+        import mujoco.viewer  # lazy: needs a display (GLFW), only with --viewer
 
         handle = mujoco.viewer.launch_passive(session.env.model, session.env.data)
     start = time.perf_counter()
@@ -137,9 +139,7 @@ def run_realtime(session: LiveSession, seconds: float, speed: float, viewer: boo
 
 def render_video(session: LiveSession, path: Path, seconds: float, speed: float, fps: float, width: int, height: int) -> int:
     """Write `seconds` of simulation at `speed` to an H.264 MP4 of `fps`; returns the frame count."""
-    import imageio.v2 as imageio
-
-    from learner.evaluation.shape.plots import FollowRenderer
+    from learner.evaluation.shape.plots import FollowRenderer  # lazy: heavy (matplotlib), only when writing a video
 
     frames = int(round(seconds / speed * fps))
     dt = session.env.dt

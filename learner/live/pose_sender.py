@@ -47,9 +47,10 @@ def clip_positions(clip_id: str, fps: float = 60.0, speed: float = 1.0, loop: bo
     """Body origins `[J, 3]` (world excluded, model order) of `clip_id` on the humanoid, one array
     per frame at `fps` (stream time k / fps, clip time k / fps x speed); ends at the clip's end
     (unless `loop`) or after `seconds`. Raises ValueError for an unknown clip."""
+    # lazy: start-up time of morphmimic send-poses --help (scipy via common.motion and common.characters)
     from common.characters import load_character
-    from common.motion.library import MotionLibrary, clips_for
-    from common.motion.reference import CharacterMotion
+    from common.motion.library import MotionLibrary, clips_for  # lazy: as above
+    from common.motion.reference import CharacterMotion  # lazy: as above
 
     known = [c for c, _ in clips_for(CHARACTER)]
     if clip_id not in known:

@@ -28,8 +28,10 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 import torch
 
+from common.characters.character import extent
 from common.characters.mass import scale_body_mass
 from common.config_limits import SEED, Limit, check_limits, validated
+from common.tasks.registry import make_env, task_clips
 from learner.checkpoint import Loaded, load_trained, make_policy
 from learner.evaluation import harness
 
@@ -141,8 +143,6 @@ class LiveSession:
 
     def __init__(self, checkpoint: str, agent: str = "policy", clip: str | None = None,
                  shape: dict[str, float] | None = None, seed: int = 0, auto_reset: bool = True):
-        from common.tasks.registry import make_env, task_clips
-
         if agent not in AGENTS:
             raise ValueError(f"agent {agent!r} is not one of {', '.join(AGENTS)}")
         self.loaded = load_trained(checkpoint)
@@ -225,8 +225,6 @@ class LiveSession:
 
     def body_height_m(self) -> float:
         """The body's vertical extent now (m), from its geoms in the current pose."""
-        from common.characters.character import extent
-
         lo, hi = extent(self.env.model, self.env.data, 2, self.character_bodies())
         return hi - lo
 

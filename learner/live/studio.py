@@ -39,11 +39,13 @@ import logging
 import sys
 import threading
 import time
+import traceback
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, ClassVar
 
 import numpy as np
+import torch
 import tyro
 import viser
 
@@ -303,8 +305,6 @@ class StudioGui:
             try:
                 self.refresh()
             except Exception:  # noqa: BLE001 - the panel must never stop; print and go on
-                import traceback
-
                 traceback.print_exc()
             self._stop.wait(REFRESH_S)
 
@@ -344,6 +344,7 @@ def keyboard_styles() -> list[str]:
     """The keyboard scheduler's style names (walk, run, ...), or just walk and run when the
     schedulers are not in this checkout."""
     try:
+        # lazy: optional: if the schedulers fail to load, the panel still opens (except below)
         from common.tasks.executor.schedulers.keyboard import locomotion_styles
 
         return list(locomotion_styles()) or ["walk", "run"]
@@ -495,7 +496,6 @@ class StudioOptions(SessionOptions):
 def main(argv: list[str]) -> int:
     description = f"{__doc__}\nshipped checkpoints: {', '.join(pretrained_checkpoints())}"
     args = parse_options(StudioOptions, argv, prog=PROG, description=description)
-    import torch
 
     torch.set_num_threads(1)  # NOTE: one small MLP per step: more threads only fight the server's
     try:

@@ -301,6 +301,7 @@ class StudioCore:
         if s.kind != "executor":
             raise ValueError(f"schedulers drive the executor; {self.label} is a shape controller that follows its own clip")
         try:
+            # lazy: optional: if the schedulers fail to load, the studio reports it (except below)
             from common.tasks.executor.schedulers.factory import make_scheduler
         except ImportError as exc:
             raise ValueError(f"the schedulers are not available in this checkout (common.tasks.executor.schedulers.factory: {exc})") from None

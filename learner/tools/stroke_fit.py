@@ -94,9 +94,10 @@ def fit(params: np.ndarray, ratios: np.ndarray) -> dict:
 def measure(preset: str, shapes: int, seed: int, log=print) -> tuple[tuple[str, ...], np.ndarray, np.ndarray, np.ndarray]:
     """(names, params [n, d], tracked speed [n] m/s, length-scaled target [n] m/s) of `shapes`
     shapes drawn uniformly from the preset's shape box."""
-    from common.tasks.registry import task_space
+    from common.tasks.registry import task_space  # lazy: start-up time of morphmimic stroke-fit --help (mujoco)
+    # lazy: start-up time of morphmimic stroke-fit --help (mujoco)
     from common.tasks.shape.stroke_speed import stroke_speed
-    from learner.presets import PRESETS
+    from learner.presets import PRESETS  # lazy: start-up time of morphmimic stroke-fit --help (torch)
 
     task = PRESETS[preset][1].task
     space = task_space(task)
@@ -116,6 +117,7 @@ def measure(preset: str, shapes: int, seed: int, log=print) -> tuple[tuple[str, 
 
 def base_ratio(preset: str) -> float:
     """The base body's tracked stroke speed over its clip's speed (1 when the clip is calibrated)."""
+    # lazy: start-up time of morphmimic stroke-fit --help (mujoco)
     from common.tasks.shape.stroke_speed import stroke_speed
 
     s = stroke_speed(preset)

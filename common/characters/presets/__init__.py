@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable
 
 from common.characters.builder import BaseCharacter
@@ -9,8 +10,6 @@ from common.characters.builder import BaseCharacter
 
 def _lazy(module: str) -> Callable[[float], BaseCharacter]:
     def build(timestep_s: float) -> BaseCharacter:
-        import importlib
-
         return importlib.import_module(f"common.characters.presets.{module}").build(timestep_s)
 
     return build

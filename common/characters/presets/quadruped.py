@@ -18,12 +18,12 @@ THIGH_M, SHANK_M = 0.24, 0.24
 SHANK_R, SHANK_HALF = 0.02, 0.09
 """The shank is a capsule of radius 2 cm from 2 cm below the knee to 4 cm above the ankle
 (its round end 2 cm clear of the ankle); the foot box reaches 2 cm above the ankle to meet it.
-Before 2026-12-04 the shank was 3 cm thick and reached 1 cm past the ankle: the shape operator
-scales a capsule's radius with the segment's width and its length with its height, so on short,
-wide shapes the shank hung below the foot's sole (13.7% of the 300 evaluation shapes in the
-retargeted trot, 22.7% within 5 mm) and stood on the floor, a fall by Won & Lee's rule from the
-first step. Now no shape's reference puts a shank into the floor (4 of 300 within 5 mm, in the
-trot's steepest frames; `morphmimic evaluate` tables falls by this clearance)."""
+The shape operator scales a capsule's radius with the segment's width and its length with its
+height, so a shank 3 cm thick reaching 1 cm past the ankle hangs below the foot's sole on short,
+wide shapes (13.7% of the 300 evaluation shapes in the retargeted trot, 22.7% within 5 mm) and
+stands on the floor, a fall by Won & Lee's rule from the first step. With this one no shape's
+reference puts a shank into the floor (4 of 300 within 5 mm, in the trot's steepest frames;
+`morphmimic evaluate` tables falls by this clearance; docs/experiments/2026-12-04-quadruped-shank.md)."""
 
 
 def build(timestep_s: float) -> BaseCharacter:

@@ -43,50 +43,45 @@ class ExecutorConfig:
     """Multiplies every DOF's effort factor (`executor.EFFORT_70KG_NM` scaled to the body's mass)."""
     passive_damping: float = 0.1
     """torque: passive joint damping as a fraction of each joint's DeepMimic PD kd (hip 5,
-    neck 1 N m s/rad at 0.1), integrated implicitly by MuJoCo. Measured: with none, random
-    torques (std 0.37) diverged the simulation in 20 of 20 episodes within 4-10 control steps
-    (ball joints have no limits and nothing takes energy out); 0.05: 4 of 20; 0.1: 0 of 20."""
+    neck 1 N m s/rad at 0.1), integrated implicitly by MuJoCo. Ball joints have no limits, so
+    without damping nothing takes energy out and random torques diverge the simulation within a
+    few control steps; 0.1 is the least that kept them stable (`docs/executor.md`, "Two defaults
+    and their measurements")."""
     pd_action_scale: float = 0.5
     """pd: rad of PD-target deviation per unit action."""
     pd_velocity_target: bool = False
     """pd: the PD's damping term tracks the next target frame's joint velocity, tau = kp (q~ - q)
     + kd (qdot~ - qdot), instead of pulling every joint toward rest, kd (0 - qdot) (DeepMimic's and
     MuJoCo's position actuator). Done by moving the position target by (kd / kp) qdot~, so the
-    actuators are unchanged. Measured (the humanoid's PD on the reference with no policy, 24
-    clips x 10 starts on the tracked frame): pose success 11.9 -> 18.8% on the train split and
-    8.8 -> 20.0% on the held-out split; the lag it removes broke the fast clips within 5-10
-    control steps (a dance's shoulder 0.6 rad behind after 8 steps, `docs/executor.md`)."""
+    actuators are unchanged. It removes the lag that breaks the fast clips within a few control
+    steps: the PD alone, with no policy, reaches 20.0% held-out pose success against 8.8%
+    (`docs/experiments/2026-12-04-executor-pd-damping-target-velocity.md`)."""
     joint_velocity: Literal["instant", "step_mean"] = "instant"
     """What the joint-velocity term compares with the target frame's joint velocities (themselves
     a central difference of the clip's frames, `common.motion.reference`): instant, the
     simulator's joint velocities at the end of the control step (as UniCon writes it); step_mean,
     the mean over the control step, `mj_differentiatePos` of the joint angles before and after
     it, which leaves out the oscillation within the step of a joint pushed against its actuator's
-    force limit. Measured on the shipped PD executor (49.6 M steps, 24 clips x 10 starts):
-    train-split success 7.5% with step_mean against 10.6% with instant, so the default stays
-    (`docs/executor.md`, "The joint-velocity term": the feet carry most of the error)."""
+    force limit. The default is instant: step_mean scores lower on the shipped PD executor (7.5
+    against 10.6% train success, `docs/experiments/2026-12-04-executor-joint-velocity-term.md`)."""
     target_velocity_window: int = 1
     """The target frames' joint velocities (reward, observation and the PD's target velocity) are
     differences of the clip over +-this many control steps (1: +-1/60 s at 60 Hz; UniCon does not
-    say). On fast clips the +-1 and +-3 step differences of the reference alone differ by more
-    than the velocity term's tolerance on a quarter to two thirds of the steps; the shipped PD
-    executor evaluated with 3 tracks 20.0% of its train starts by UniCon's rule against 10.6%
-    with 1, at the same pose success (`docs/executor.md`, "The joint-velocity term")."""
+    say). A wider window smooths the fast clips' target velocities, whose +-1 and +-3 step
+    differences alone often differ by more than the velocity term's tolerance
+    (`docs/experiments/2026-12-04-executor-joint-velocity-term.md`)."""
     ankle_armature: float = 0.01
     """Rotor inertia (kg m^2) of each ankle DOF (the builder gives every actuated DOF 0.01,
     `common.characters.builder.ARMATURE_KG_M2`). A foot in the air is light (0.0033 kg m^2 about
     its twist axis): whenever its PD asks for more than the 90 N m force limit, the clamped force
     is constant, MuJoCo's implicit integration no longer damps it, and the foot's velocity flips
     sign from one substep to the next; the instant velocity the joint-velocity term reads is then
-    noise. On the shipped PD executor (24 clips x 10 starts) the ankles' squared velocity error
-    averaged 9-21 (rad/s)^2 per DOF with the foot in the air against 1-6 on the floor, and 0.1
-    raised UniCon's five-term success from 10.6 / 1.2% to 14.4 / 6.2% train / test with no
-    retraining (`docs/executor.md`, "The ankles' chatter in the air")."""
+    noise. A larger inertia damps that chatter; the `executor-pd` preset sets 0.1
+    (`docs/experiments/2026-12-05-executor-armature-ankles.md`)."""
     arm_armature: float = 0.01
     """Rotor inertia (kg m^2) of each shoulder and elbow DOF, for the same reason as
-    `ankle_armature` (an arm is light and its PD often at the limit). With both at 0.1 the shipped
-    PD executor's five-term success was 20.0 / 7.5% train / test with no retraining (14.4 / 6.2%
-    with the ankles alone)."""
+    `ankle_armature` (an arm is light and its PD often at the limit); the `executor-pd` preset
+    sets 0.1 (`docs/experiments/2026-12-05-executor-armature-ankles.md`)."""
     reference_filter_hz: float = 0.0
     """Cut-off (Hz) of the zero-phase low-pass filter every clip's tracks go through once, when
     the executor prepares the clip (`common.motion.clean.filter_qpos`: a Butterworth filter run
@@ -136,28 +131,26 @@ class ExecutorConfig:
     """Reactive initialization: Gaussian noise (m/s on the root, rad/s on every other DOF)."""
     catch_up_steps: int = 30
     """Training: the termination rule is suspended for this many control steps after an episode
-    starts and after a reschedule (0: never, UniCon as written). A reconstruction: UniCon says
-    a 5-10 step offset "does not lead to early termination", but measured here every start
-    broke a term at once: the offset itself puts r_pj below 0.1 (10 frames into a cartwheel),
-    and from the tracked frame exactly a zero-torque body breaks r_wj in one step (40 of 40
-    starts). With a grace of only the offset, a run's first 0.6 M steps ended every episode on
-    the step after the grace (60 of 60), leaving nothing to learn beyond it; 30 steps (0.5 s)
-    let the dense reward teach tracking first. Evaluation applies the rule from the first step."""
+    starts and after a reschedule (0: never, UniCon as written). UniCon says a 5-10 step offset
+    "does not lead to early termination", but here an untrained policy breaks a term at once
+    after every start (the offset alone puts r_pj below 0.1), so with the rule from the first
+    step no episode lasts; 30 steps (0.5 s) let the dense reward teach tracking first
+    (`docs/executor.md`, "Two defaults and their measurements"). Evaluation applies the rule
+    from the first step."""
     on_frame_share: float = 0.0
     """Training: the share of episode starts placed on the tracked frame exactly, without noise
     and with the rule from the first step, as the evaluation starts its episodes; the other
     starts use `reactive_init` and the `catch_up_steps` wait (0: every start as those say).
-    Reschedules at a clip's end are unchanged. Measured (learner/pretrained/executor/ablation-mixed-starts, 9.6 -> 12.3 M steps, one seed):
-    0.5 against 0 gained 3.3 points of train and 1.5 of held-out success by UniCon's rule, 5.9 and 2.5
-    of pose success, and lost 2.3 points of relative performance against a projectile every 20 steps."""
+    Reschedules at a clip's end are unchanged. The `executor-pd` preset sets 0.5: more success by
+    UniCon's rule, a little less robustness to projectiles
+    (`docs/experiments/2026-12-05-executor-success-plateau-and-mixed-starts.md`)."""
     catch_up_ends: Literal["after_steps", "on_track"] = "after_steps"
     """When the wait of `catch_up_steps` ends: after_steps, always after that many control steps;
     on_track, also at the first step on which every watched term is at or above `alpha` (the
-    character has caught up; from then on the rule applies, as UniCon's would). Measured on the
-    PD executor at 9.8 M steps (200 training episodes, stochastic actions): 86% of starts were
-    on track within the wait (median: from the first step) and then lost it after a median of
-    17 steps, still inside the wait; 52% of the episodes ended on the wait's last step, so about
-    a third of all training steps came from states the rule would already have ended."""
+    character has caught up; from then on the rule applies, as UniCon's would). Most starts are
+    on track within the wait and lose it again inside it, so after_steps trains on states the
+    rule would already have ended; on_track changed no evaluation figure
+    (`docs/experiments/2026-12-03-executor-where-training-episodes-end.md`)."""
     at_clip_end: Literal["reschedule", "stop"] = "reschedule"
     """What the dataset scheduler does when a clip's end is reached: reschedule a random clip
     and frame (training), or stop, which truncates the episode (evaluation)."""

@@ -58,9 +58,8 @@ class ImitateConfig:
     shin_contact_is_fall: bool = True
     """Walkers: False lets the segment above each foot (a quadruped's shank) touch the floor
     without it counting as a fall; the trunk, head and thighs still end the episode. Every
-    preset keeps Won & Lee's rule (True); the quadruped's preset let the shanks touch until its
-    shank was thinned on 2026-12-04 (on short, wide shapes the old one hung below the sole).
-    The clearance lift (`retarget.body_clearance_m`) follows the same rule."""
+    preset keeps Won & Lee's rule (True). The clearance lift (`retarget.body_clearance_m`)
+    follows the same rule."""
     max_root_deviation: float = 0.0
     """Swimmers: terminate (as a fall) when the root is this many body lengths off the
     reference's course (sideways or vertically; lagging or leading along it is not a fall, see

@@ -6,8 +6,8 @@ Won & Lee 2019 (METHOD.md A) drive the fish and the manta ray with hand-made sin
 keyframes whose root moves forward; in MuJoCo's fluid the root's speed is not free but what the
 stroke's thrust gives. A reference whose root runs slower than its own stroke pushes is a
 contradiction the policy cannot resolve: the imitation terms reward tracking the stroke, and a
-tracked stroke outswims the root (a swimmer used to count as fallen more than a body length
-from its reference's root; now only off its course, `ImitateEnv.off_course_m`). So the clip's
+tracked stroke outswims the root (a swimmer falls only off its reference's course, not by lagging
+or leading along it: `ImitateEnv.off_course_m`). So the clip's
 speed is measured with the stroke tracked closely: the base body's PD gains stiffened `gain_scale` times (kp x s, kd x sqrt(s)), its torque limits kept (what a
 policy can reach), zero action, from `start_s` to `stop_s`.
 """
@@ -39,15 +39,16 @@ def stroke_speed(preset: str, gain_scale: float = CLOSE_TRACKING_GAIN, start_s: 
     preset's parameterization) tracking its stroke with PD gains x `gain_scale` and zero action,
     averaged over [start_s, stop_s] (see the module docstring). `clip_speed_m_s` is then the
     speed of the reference the task retargets to that body."""
-    from common.tasks.registry import make_env, task_space
-    from common.tasks.shape.presets import shape_task
-
     if preset not in SWIMMERS:
         raise ValueError(f"stroke speed: {preset!r} is not a swimmer; choose one of {SWIMMERS}")
     if not (np.isfinite(gain_scale) and gain_scale >= 1.0):
         raise ValueError(f"stroke speed: gain scale {gain_scale} must be a finite number >= 1")
     if not (0.0 <= start_s and start_s + 1.0 <= stop_s <= 60.0):
         raise ValueError(f"stroke speed: window [{start_s}, {stop_s}] s must satisfy 0 <= start, start + 1 <= stop <= 60")
+    # lazy: start-up time of morphmimic stroke-speed --help (mujoco via the tasks)
+    from common.tasks.registry import make_env, task_space
+    from common.tasks.shape.presets import shape_task  # lazy: as above
+
     task = shape_task(preset)
     task = dataclasses.replace(task, episode_s=stop_s + 1.0, imitate=dataclasses.replace(
         task.imitate, max_root_deviation=0.0, random_start_phase=False, swimmer_speed="length"))

@@ -14,7 +14,14 @@ from __future__ import annotations
 
 from typing import Any
 
-from common.tasks.executor.schedulers.base import Scheduler
+import numpy as np
+
+from common.motion.clip_manager import ClipManager
+from common.tasks.executor.env import humanoid_clips
+from common.tasks.executor.schedulers.base import DatasetScheduler, Scheduler
+from common.tasks.executor.schedulers.keyboard import KeyboardScheduler
+from common.tasks.executor.schedulers.stitch import StitchScheduler
+from common.tasks.executor.schedulers.video import VideoScheduler
 
 SCHEDULERS = ("dataset", "stitch", "keyboard", "video")
 DEFAULT_STITCH = ("humanoid3d_walk", "humanoid3d_run", "humanoid3d_walk")
@@ -33,8 +40,6 @@ def make_scheduler(name: str, env: Any, **options: Any) -> Scheduler:
     if name == "dataset":
         return _dataset(env, frames, **options)
     if name == "stitch":
-        from common.tasks.executor.schedulers.stitch import StitchScheduler
-
         clips = options.pop("clips", ()) or DEFAULT_STITCH
         if isinstance(clips, str) or not isinstance(clips, (tuple, list)):
             raise ValueError(f"stitch clips {clips!r} must be a list of clip ids (or (id, start_s, end_s) items)")
@@ -42,10 +47,7 @@ def make_scheduler(name: str, env: Any, **options: Any) -> Scheduler:
         options.setdefault("speed", ex.speed)
         return StitchScheduler(env.ref_model, env._motion, env.dt, clips, known_ids=_known_clips(env), **frames, **options)
     if name == "keyboard":
-        from common.tasks.executor.schedulers.keyboard import KeyboardScheduler
-
         return KeyboardScheduler(env.ref_model, env._motion, env.dt, **frames, **options)
-    from common.tasks.executor.schedulers.video import VideoScheduler
 
     # NOTE: the playback delay covers the lookahead plus one step for the centred velocity, so
     # every frame the observation asks for is interpolated between received frames.
@@ -57,11 +59,6 @@ def _dataset(env: Any, frames: dict, *, clips: tuple[str, ...] = (), **options: 
     """A dataset scheduler over `clips` (drawn uniformly) or, by default, the environment's own
     `ClipManager` (the task's clips by the motion balancer); options default to the task's
     (speed, at_end, target velocity window)."""
-    import numpy as np
-
-    from common.motion.clip_manager import ClipManager
-    from common.tasks.executor.schedulers.base import DatasetScheduler
-
     if clips:
         known = _known_clips(env)
         unknown = [c for c in clips if c not in known]
@@ -80,7 +77,5 @@ def _dataset(env: Any, frames: dict, *, clips: tuple[str, ...] = (), **options: 
 def _known_clips(env: Any) -> list[str]:
     """Every clip id `env` can play: the humanoid's library clips, their mirror images and the
     clips registered on it."""
-    from common.tasks.executor.env import humanoid_clips
-
     known = [c for c, _ in humanoid_clips(mirror=True, library="full")]
     return known + [c for c in env._motions if c not in set(known)]

@@ -41,6 +41,7 @@ from typing import Iterable
 import mujoco
 import numpy as np
 
+from common.motion.library import clips_for
 from common.tasks.observations import JointLayout, heading, quat_to_mat
 from common.tasks.executor.schedulers.pose_blend import PoseMath
 from common.tasks.executor.schedulers.base import MotionFn, TargetFrame, place, yaw_quat
@@ -55,8 +56,6 @@ def locomotion_styles(character: str = "humanoid") -> dict[str, str]:
     """Style name -> clip id of every locomotion clip of `character` (manifest labels under
     root/locomotion/): the id's last part without the 'humanoid3d_' prefix (walk, run, crawl,
     zombie_walk, mass_walk, mass_run)."""
-    from common.motion.library import clips_for
-
     out: dict[str, str] = {}
     for clip_id, label in clips_for(character):
         if label.startswith("root/locomotion/"):
