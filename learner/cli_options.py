@@ -31,7 +31,7 @@ import io
 import sys
 import textwrap
 from collections.abc import Callable
-from typing import Annotated, Any, NoReturn, TypeVar
+from typing import Annotated, Any, Literal, NoReturn, TypeVar, get_args, get_origin, get_type_hints
 
 import tyro
 from tyro.constructors import PrimitiveConstructorSpec
@@ -159,8 +159,6 @@ def short_help(cls: type, names: list[str], defaults: Any, prog: str, head: str 
     with their values (a Literal's choices), defaults (from `defaults`, an instance) and field
     docstrings, `extra` (flag, text) rows first; ends with a line naming `more` for every option.
     Built from the dataclass, so it cannot drift from the parser."""
-    from typing import Literal, get_args, get_origin, get_type_hints
-
     hints, docs = get_type_hints(cls), field_docs(cls)
     fields = {f.name for f in dataclasses.fields(cls)}
     rows = list(extra)

@@ -40,7 +40,9 @@ from gymnasium import spaces
 
 from common.offscreen_gl import use_offscreen_context
 from common.tasks.base import TaskConfig
+from common.tasks.executor.presets import executor_task
 from common.tasks.registry import TASKS, make_env, task_entry
+from common.tasks.shape.presets import shape_task
 
 NAMESPACE = "morphmimic"
 VERSION = 0
@@ -60,12 +62,8 @@ def default_config(task: str) -> TaskConfig:
     `shape_task`, the executor's from `executor_task` (torque), reach's the defaults."""
     family = task_entry(task).family
     if family == "shape":
-        from common.tasks.shape.presets import shape_task
-
         return shape_task(task)
     if family == "executor":
-        from common.tasks.executor.presets import executor_task
-
         return executor_task()
     return TaskConfig(name=task)
 

@@ -30,6 +30,7 @@ from common.motion.procedural import GENERATORS
 from common.motion.reference import CharacterMotion
 from common.motion.retarget import character_feet, contact_phases, play_on
 from common.motion.root_height import ROOT_HEIGHT_RULES
+from common.tasks.executor.config import ExecutorConfig
 from learner.cli import dispatch
 from learner.cli_options import parse_options
 
@@ -245,9 +246,8 @@ def cleaning_line(clip, model, filter_hz: float, floor: bool) -> str:
     outside the MimicKit/PHC widened one), the largest one-step change of the target joint
     velocities against the joint-velocity term's tolerance and the share of steps above it, and
     the lowest geom's height (median, worst, share of steps below the floor)."""
+    # lazy: start-up time of motion --help (common.motion.clean adds scipy.optimize)
     from common.motion.clean import clean_motion, reference_stats
-    from common.motion.reference import CharacterMotion
-    from common.tasks.executor.config import ExecutorConfig
 
     ex = ExecutorConfig()
     tolerance = float(np.log(1.0 / ex.alpha) / ex.reward_scales[4])

@@ -32,6 +32,7 @@ import numpy as np  # noqa: E402
 from learner import checkpoint
 
 from common.config_limits import SEED, Limit, above, at_least, between, check_limits, validated  # noqa: E402
+from common.tasks.registry import make_env
 from learner.cli_options import parse_options, refuse  # noqa: E402
 from learner.evaluation import harness, registry  # noqa: E402
 from learner.evaluation.shape import episodes
@@ -156,8 +157,6 @@ def main(argv: list[str]) -> int:
 
 def _shape_figures(loaded: checkpoint.Loaded, args: CurveOptions) -> dict:
     """A shape controller's figures on the curve's random shapes (`episodes.summarize`)."""
-    from common.tasks.registry import make_env
-
     env = make_env(harness.eval_task(loaded.cfg.task, args.episode_s, args.box_scale), seed=0)
     shapes = episodes.eval_shapes(env.space, args.shapes, args.seed)
     res = episodes.evaluate(loaded, shapes, args.episode_s, args.seed, args.workers, box_scale=args.box_scale)
@@ -269,10 +268,10 @@ def _short(value) -> str:
 
 
 def _plot(rows: list[dict], path: Path, args) -> None:
-    import matplotlib
+    import matplotlib  # lazy: heavy (matplotlib), only when plotting
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # lazy: heavy (matplotlib), only when plotting
 
     steps = np.array([r["env_steps"] for r in rows]) / 1e6
     fig, ax = plt.subplots(figsize=(6, 4), dpi=120)

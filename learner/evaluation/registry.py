@@ -68,7 +68,7 @@ option first, then the checkpoint (the shape evaluation's; any family's would do
 def dispatch(command: str, argv: list[str], checkpoint_flag: str) -> int:
     """Run `morphmimic <command>` with the evaluator of the task of the (first) checkpoint given
     by `checkpoint_flag`."""
-    from learner import checkpoint
+    from learner import checkpoint  # lazy: heavy (torch); the family packages import this module
 
     path = first_value(argv, checkpoint_flag)
     try:

@@ -22,6 +22,7 @@ import urllib.request
 from pathlib import Path
 
 import numpy as np
+from websockets.sync.client import connect
 
 
 def find_chromium() -> str | None:
@@ -36,8 +37,6 @@ class Chromium:
     """One headless browser with one page at `url`; use as a context manager."""
 
     def __init__(self, url: str, width: int = 1280, height: int = 800, timeout_s: float = 20.0):
-        from websockets.sync.client import connect
-
         exe = find_chromium()
         if exe is None:
             raise RuntimeError("chromium is not installed (apt-get install chromium)")
@@ -85,7 +84,7 @@ class Chromium:
 
     def screenshot(self) -> np.ndarray:
         """The page now, as an RGB array [H, W, 3]."""
-        import imageio.v3 as iio
+        import imageio.v3 as iio  # lazy: heavy (imageio), only when taking a screenshot
 
         data = base64.b64decode(self.call("Page.captureScreenshot", format="png")["data"])
         return iio.imread(io.BytesIO(data))[..., :3]

@@ -39,12 +39,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, ClassVar
 
+import mujoco
 import numpy as np
 import tyro
 
 from common.config_limits import Limit, above, check_limits, validated
 from common.tasks.executor.schedulers.pose_packet import HUMANOID_JOINTS
+from learner.cli import dispatch
 from learner.cli_options import parse_options, refuse
+from learner.live.pose_sender import load_keypoints
 
 MAPS = Path(__file__).resolve().parent / "keypoint_maps"
 """Shipped mapping files (`--mapping NAME` finds NAME.json here)."""
@@ -131,8 +134,6 @@ def load_mapping(name_or_path: str | Path) -> Mapping:
 def read_mjcf_keyframes(path: str | Path) -> tuple[np.ndarray, tuple[str, ...], float | None]:
     """(positions [T, J, 3], the mocap bodies' names, fps from the keys' times or None) of an
     MJCF file whose keyframes hold mocap positions (`mpos`)."""
-    import mujoco
-
     try:
         model = mujoco.MjModel.from_xml_path(str(path))
     except ValueError as exc:
@@ -162,8 +163,6 @@ def read_source(path: str | Path) -> tuple[np.ndarray, tuple[str, ...] | None, f
         return read_mjcf_keyframes(path)
     if suffix not in (".npy", ".npz"):
         raise ValueError(f"{path}: give an MJCF keyframe file (.xml), a .npy or a .npz")
-    from learner.live.pose_sender import load_keypoints
-
     return load_keypoints(path)
 
 
@@ -179,6 +178,7 @@ def _evaluate(expr: Any, positions: np.ndarray, index: dict[str, int], where: st
 
 def model_bones() -> tuple[np.ndarray, np.ndarray]:
     """(parent index per receiver joint, -1 for the root; rest length of the bone to it, m)."""
+    # lazy: start-up time of keypoints --help (common.characters adds scipy.optimize)
     from common.characters import load_character
 
     model = load_character("humanoid").model
@@ -282,8 +282,6 @@ SUBCOMMANDS: dict[str, tuple[str | Any, str]] = {
 
 
 def main(argv: list[str]) -> int:
-    from learner.cli import dispatch
-
     return dispatch("morphmimic keypoints", "subcommand", SUBCOMMANDS, argv)
 
 

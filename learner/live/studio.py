@@ -51,6 +51,7 @@ import viser
 
 from common.config_limits import PORT, Limit, above, at_least, check_limits, validated
 from learner.cli_options import parse_options
+from learner.live.chromium import DISMISS_NOTIFICATIONS_JS, Chromium, character_pixels, find_chromium
 from learner.live.session import AGENTS, SessionOptions
 from learner.live.studio_core import KEYS, SCHEDULERS, StudioCore, pretrained_checkpoints
 from learner.live.studio_scene import CharacterScene
@@ -446,8 +447,6 @@ def take_screenshot(studio: Studio, path: Path, size: tuple[int, int] = (1280, 8
     (its colour in the 3-D view, `chromium.character_pixels`) and it has stepped `after_s`
     simulated seconds, close the notifications and save the page as a PNG. RuntimeError when
     Chromium is missing or the scene does not show within `timeout_s`."""
-    from learner.live.chromium import DISMISS_NOTIFICATIONS_JS, Chromium, character_pixels, find_chromium
-
     if find_chromium() is None:
         raise RuntimeError("needs chromium (apt-get install chromium)")
     end = time.monotonic() + timeout_s

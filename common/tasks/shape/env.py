@@ -30,7 +30,8 @@ import math
 import mujoco
 import numpy as np
 
-from common.characters import CharacterFactory, base_character
+from common.characters import CharacterFactory, base_character, morph
+from common.characters.morph import lift_out_of_floor
 from common.characters.operator import gains_follow_torque_limits
 from common.params import ParamSpace
 from common.tasks.base import TaskConfig, diverged_step, step_physics
@@ -253,8 +254,6 @@ class ImitateEnv:
         self.data.qpos[:] = self.ref.column("q")[row]
         self.data.qvel[:] = self._ref_qvel(0)
         if not self.character.is_swimmer:
-            from common.characters.morph import lift_out_of_floor
-
             lift_out_of_floor(self.model, self.data)
         mujoco.mj_forward(self.model, self.data)
         self.com_hist: collections.deque = collections.deque(maxlen=int(round(COM_WINDOW_S * self.cfg.control_hz)) + 1)
@@ -432,8 +431,6 @@ class ImitateEnv:
         """Morph the body to `shape` `[P]` now, keeping the state (common.characters.morph) and
         the clip time; the reference is retargeted to the new body and shifted so its root
         stays where it was. The episode's parameter vector (in the observation) follows."""
-        from common.characters import morph
-
         shape = np.asarray(shape, dtype=np.float64)
         old_root = self.ref_q[0][0:3].copy()
         self._cache.clear()  # NOTE: morph re-shapes the spec in place: cached characters share it

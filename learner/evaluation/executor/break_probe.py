@@ -26,8 +26,10 @@ from __future__ import annotations
 from collections import Counter, defaultdict
 from typing import Any
 
+import mujoco
 import numpy as np
 
+from common.tasks.executor import rewards as rw
 from learner.cli_options import parse_options
 from learner.evaluation.executor import probe_cli
 
@@ -56,8 +58,6 @@ class BreakHook(probe_cli.StepHook):
     joint-position break each body's squared error and the root's offsets (`root_offsets`)."""
 
     def __init__(self, env):
-        from common.tasks.executor import rewards as rw
-
         super().__init__()
         self.pose_terms, self.alpha = rw.POSE_TERMS, env.ex.alpha
         self.first_pose: list[str] | None = None
@@ -147,8 +147,6 @@ def report(name: str, rows: dict[str, dict]) -> str:
 
 
 def main(argv: list[str]) -> int:
-    import mujoco
-
     args = parse_options(probe_cli.ProbeOptions, argv, prog=PROG, description=__doc__)
     opened = probe_cli.open_checkpoint(PROG, args)
     model = opened.env.ref_model

@@ -93,10 +93,10 @@ def reached(rows: list[dict], target: float) -> str:
 
 def plot(rows: list[dict], path: Path, target: float, starts: int) -> None:
     """Success and pose success % per split against environment steps."""
-    import matplotlib
+    import matplotlib  # lazy: heavy (matplotlib), only when plotting
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # lazy: heavy (matplotlib), only when plotting
 
     steps = np.array([r["env_steps"] for r in rows]) / 1e6
     splits = [s for s in xe.SPLITS if any(s in r.get("splits", {}) for r in rows)]

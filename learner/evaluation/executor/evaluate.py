@@ -41,8 +41,14 @@ from typing import Any, Callable, Iterable
 import numpy as np
 import torch
 
+from common.motion.errors import ClipError
+from common.motion.library import import_source
 from common.motion.mirror import MIRROR_SUFFIX
 from common.tasks.base import TaskConfig
+from common.tasks.executor import rewards as rw
+from common.tasks.executor.env import CHARACTER, humanoid_clips, labelled_clips
+from common.tasks.registry import make_env
+from learner.config import RunConfig, _from_dict
 from learner.evaluation import harness
 from learner import checkpoint
 
@@ -117,8 +123,6 @@ def split_tags(cfg: TaskConfig) -> dict[str, str]:
     """{clip_id: "train" | "test" | "unused"} for every clip of the checkpoint's library and its mirror image (see
     `SPLITS`), from the checkpoint's task config: its clip list or split (and split seed), and
     whether it trained on mirror images (without, a train clip's mirror is "unused")."""
-    from common.tasks.executor.env import humanoid_clips, labelled_clips
-
     trained = {c for c, _ in labelled_clips(cfg)}
     held_out = {c for c, _ in labelled_clips(_with_executor(cfg, clips=(), split="test"))}
     return {c: "train" if c in trained else "test" if c in held_out else "unused" for c, _ in humanoid_clips(mirror=True, library=cfg.executor.library)}
@@ -127,8 +131,6 @@ def split_tags(cfg: TaskConfig) -> dict[str, str]:
 def default_clips(cfg: TaskConfig, splits: Iterable[str] = ("train", "test", "unused")) -> list[EvalClip]:
     """Every humanoid clip whose split tag is in `splits`, in manifest order; mirror images only
     when the checkpoint trained on them (`ExecutorConfig.mirror`; name them in --clips otherwise)."""
-    from common.tasks.executor.env import humanoid_clips
-
     tags, keep = split_tags(cfg), set(splits)
     return [EvalClip(c, label, tags[c]) for c, label in humanoid_clips(mirror=cfg.executor.mirror, library=cfg.executor.library)
             if tags[c] in keep]
@@ -137,8 +139,6 @@ def default_clips(cfg: TaskConfig, splits: Iterable[str] = ("train", "test", "un
 def classify_clip_value(text: str) -> tuple[str, str]:
     """("id" | "file" | "folder", text) for one --clips value, or ClipSelectionError naming it:
     an unknown id, a missing file, a folder holding no `.npz` clips."""
-    from common.tasks.executor.env import humanoid_clips
-
     ids = [c for c, _ in humanoid_clips(mirror=True, library="full")]
     if text in ids:
         return "id", text
@@ -162,9 +162,6 @@ def classify_clip_value(text: str) -> tuple[str, str]:
 def import_clip_file(path: Path):
     """A clip file imported onto the humanoid (`.bvh` through cross-skeleton retargeting);
     ClipError when it cannot be, or when it is bound to another character."""
-    from common.motion.errors import ClipError
-    from common.motion.library import import_source
-    from common.tasks.executor.env import CHARACTER
 
     clip = import_source(path, character=CHARACTER) if path.suffix.lower() == ".bvh" else import_source(path)
     if clip.character and clip.character != CHARACTER:
@@ -177,8 +174,6 @@ def resolve_clips(values: Iterable[str], cfg: TaskConfig) -> list[EvalClip]:
     """The clips named by --clips values (ids, files, folders of `.npz`), in the order given,
     without duplicates. Ids keep their split tag; files are tagged "imported" and get the id
     `imported/<file stem>`. Raises ClipSelectionError (naming the value) or ClipError."""
-    from common.tasks.executor.env import humanoid_clips
-
     tags, labels = split_tags(cfg), dict(humanoid_clips(mirror=True, library="full"))
     out: list[EvalClip] = []
     seen: set[str] = set()
@@ -240,8 +235,6 @@ def with_settings(loaded: checkpoint.Loaded, pairs: list[str]) -> checkpoint.Loa
     JSON, or a bare word for a choice, or comma-separated numbers for a tuple) in its task config;
     ValueError naming the pair and what is allowed. The policy is unchanged: this measures a
     trained policy on a changed body or rule, as `--zero-action` measures the PD without one."""
-    from learner.config import _from_dict
-
     if not pairs:
         return loaded
     current = dataclasses.asdict(loaded.cfg.task.executor)
@@ -271,8 +264,6 @@ def with_settings(loaded: checkpoint.Loaded, pairs: list[str]) -> checkpoint.Loa
 
 def make_eval_env(loaded: checkpoint.Loaded, clips: Iterable[EvalClip], perturbation: Perturbation = Perturbation()):
     """The evaluation environment with the imported clips registered and the mass scaled."""
-    from common.tasks.registry import make_env
-
     env = make_env(eval_task(loaded.cfg.task, perturbation), seed=0)
     for c in clips:
         if c.clip is not None:
@@ -296,8 +287,6 @@ def first_failures(terms: dict[str, float], weights, alpha: float, own_rule: str
     """(the per-term rule's verdict over all five terms, over the four pose terms, the
     checkpoint's own rule's verdict) at one step: the name of what ended it
     (`executor_rewards.termination`), or None."""
-    from common.tasks.executor import rewards as rw
-
     per_term = rw.termination(terms, weights, "per_term", alpha)
     pose = rw.termination(terms, weights, "per_term", alpha, rw.POSE_TERMS)
     own = rw.termination(terms, weights, own_rule, alpha, own_watch or rw.TERMS)
@@ -371,8 +360,6 @@ _WORKER: dict[str, Any] = {}
 
 def _init_worker(state_file: str, clips: list[EvalClip], perturbation: Perturbation, zero_action: bool = False,
                  cfg_json: str = "", max_steps: int | None = None) -> None:
-    from learner.config import RunConfig
-
     torch.set_num_threads(1)
     loaded = checkpoint.load_trained(state_file)
     if cfg_json:  # the parent's config, with any `--set` in it

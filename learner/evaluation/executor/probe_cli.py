@@ -10,7 +10,9 @@ from pathlib import Path
 from typing import Any, Callable, ClassVar, Literal
 
 from common.config_limits import Limit, at_least, check_limits, validated
+from learner import checkpoint
 from learner.cli_options import refuse
+from learner.evaluation.executor import evaluate as xe
 from learner.evaluation.executor.report import Settings
 
 Split = Literal["train", "test", "unused"]
@@ -60,9 +62,6 @@ def open_checkpoint(prog: str, args: ProbeOptions) -> Opened:
     """Load `args.checkpoint`; a usage error of `prog` (exit 2) naming the value when it is no
     executor, a `--set` pair is bad or changes nothing the probe reads, a split holds no clips or
     `--out` cannot be written, before any episode runs. Repeated `--splits` are run once."""
-    from learner import checkpoint
-    from learner.evaluation.executor import evaluate as xe
-
     args.splits = tuple(dict.fromkeys(args.splits))
     if args.out:
         try:
@@ -111,8 +110,6 @@ class StepHook:
 def episodes(opened: Opened, split: str, starts: int, make_hook: Callable[[Any], Any]):
     """Yield (hook, record) for every episode of `split` (each clip from `starts` start frames, the
     mean action, `executor_eval.run_episode`), `make_hook(env)` making each episode's `on_step`."""
-    from learner.evaluation.executor import evaluate as xe
-
     clips = [c for c in opened.clips if c.split == split]
     durations = xe.clip_durations(opened.env, clips)
     for clip in clips:

@@ -29,9 +29,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, ClassVar
 
+import matplotlib
+import matplotlib.pyplot as plt
 import tyro
+from matplotlib.patches import Patch
 
 from common.config_limits import Limit, at_least, check_limits, validated
+from common.motion.errors import ClipError
+from common.tasks.executor.rewards import POSE_TERMS, TERMS
 from learner.cli_options import parse_options, refuse, value_list
 from learner.evaluation.executor import EXECUTOR_ONLY_OPTIONS
 from learner import checkpoint
@@ -105,8 +110,6 @@ class ReportOptions(ClipOptions):
 def select_clips(prog: str, values: tuple[str, ...], loaded: checkpoint.Loaded) -> list[xe.EvalClip]:
     """--clips resolved against the checkpoint's config (empty: its default clips); a clip the
     checkpoint cannot play is a usage error of `prog`."""
-    from common.motion.errors import ClipError
-
     try:
         return xe.resolve_clips(list(values), loaded.cfg.task) if values else xe.default_clips(loaded.cfg.task)
     except (xe.ClipSelectionError, ClipError) as exc:
@@ -120,8 +123,6 @@ def describe(cfg) -> str:
         clips = f"{len(ex.clips)} listed clips"
     else:
         clips = f"{ex.split} split (seed {ex.split_seed})"
-    from common.tasks.executor.rewards import POSE_TERMS, TERMS
-
     watch = {TERMS: "", POSE_TERMS: " on the pose terms"}.get(tuple(ex.terminate_on), f" on {', '.join(ex.terminate_on)}")
     return (f"{ex.actuation}, {'per-term' if ex.termination == 'per_term' else ex.termination} termination"
             f"{watch if ex.termination == 'per_term' else ''} (alpha {ex.alpha:g}), {ex.clip_draws} clip draws{f' (adaptive, clip-k {cfg.sampler.clip_k:g})' if cfg.sampler.clip_k else ''}, {'reactive init' if ex.reactive_init else 'no reactive init'}"
@@ -201,12 +202,7 @@ def ceiling_line(c: dict) -> str:
 
 def plot_clips(summary: dict, path: Path, title: str = "") -> Path:
     """Bar chart of the success rate per clip, coloured by split, PHC success as dots."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.patches import Patch
-
     clips = sorted(summary["clips"].items(), key=lambda kv: xe.SPLITS.index(kv[1]["split"]))
     names = [c for c, _ in clips]
     fig, ax = plt.subplots(figsize=(max(5.0, 0.35 * len(names) + 1.5), 4.2), dpi=120)

@@ -47,6 +47,7 @@ from pathlib import Path
 from typing import Annotated, Any, ClassVar
 
 import numpy as np
+import torch
 
 from common.config_limits import SEED, Limit, above, at_least, check_limits, validated
 from learner.cli_options import parse_options, refuse
@@ -55,9 +56,11 @@ from learner.evaluation.shape import episodes
 from learner import checkpoint
 
 from learner.evaluation.executor import evaluate as xe
-from learner.evaluation.executor.report import Clips, Settings
+from learner.evaluation.executor import robustness_report
+from learner.evaluation.executor.report import Clips, Settings, select_clips
 from common.characters.mass import scale_body_mass, set_body_mass
 from common.tasks.executor.env import PROJECTILES
+from common.tasks.registry import make_env, task_space
 
 SPEEDS = (0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.1, 1.2, 1.3, 1.4, 1.5, 1.6)
 PROJECTILE_EVERY = (1, 5, 10, 20, 30, 40, 50, 60, 70, 80)
@@ -262,10 +265,6 @@ def _shape_task(cfg, episode_s: float, speed: float):
 
 
 def _init_shape(state_file: str, episode_s: float, pert: xe.Perturbation) -> None:
-    import torch
-
-    from common.tasks.registry import make_env
-
     torch.set_num_threads(1)
     loaded = checkpoint.load_trained(state_file)
     env = make_env(_shape_task(loaded.cfg.task, episode_s, pert.speed), seed=0)
@@ -286,8 +285,6 @@ def _shape_work(job: tuple[int, np.ndarray, int]) -> dict[str, Any]:
 def shape_rows(loaded: checkpoint.Loaded, shapes: int, episode_s: float, seed: int, workers: int, rows: list[Row],
                log=print) -> tuple[dict, list[dict]]:
     """(the unperturbed row, one result per row) for a shape controller on `shapes` random shapes."""
-    from common.tasks.registry import task_space
-
     space = task_space(harness.eval_task(loaded.cfg.task, episode_s))
     params = episodes.eval_shapes(space, shapes, seed)
     if "speed" in space.names:  # the unperturbed episodes play at normal speed; rows set their own
@@ -357,8 +354,6 @@ def _line(res: dict, base: dict) -> str:
 
 
 def main(argv: list[str]) -> int:
-    from learner.evaluation.executor import robustness_report
-
     args = parse_options(RobustnessOptions, argv, prog=PROG, description=__doc__)
     loaded = checkpoint.load_trained(args.checkpoint)
     executor = loaded.cfg.task.name == "executor"
@@ -377,8 +372,6 @@ def main(argv: list[str]) -> int:
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
     if executor:
-        from learner.evaluation.executor.report import select_clips
-
         clips = select_clips(PROG, args.clips, loaded) if args.clips else xe.default_clips(loaded.cfg.task, ("train",))
         if not clips:
             refuse(PROG, f"--checkpoint {args.checkpoint}: it trained on no humanoid clip; name --clips")

@@ -8,6 +8,10 @@ import json
 from pathlib import Path
 from typing import Any
 
+import matplotlib
+import matplotlib.pyplot as plt
+
+from common.tasks.executor.env import PROJECTILE, PROJECTILES
 from learner import checkpoint
 
 from learner.evaluation.shape import plots as eval_plots
@@ -15,8 +19,6 @@ from learner.evaluation.shape import plots as eval_plots
 
 def projectile_spec() -> dict[str, Any]:
     """The projectile as `common.tasks.executor.env` builds it and `throw_projectile` aims it."""
-    from common.tasks.executor.env import PROJECTILE, PROJECTILES
-
     return {"mass_kg": PROJECTILE["mass_kg"], "radius_m": PROJECTILE["radius_m"],
             "aim": "from a random horizontal direction, launched at the root's height +-0.3 m, at where the centre "
                    "of mass will be when it arrives (the root's velocity held; gravity bends the path a little)",
@@ -92,10 +94,7 @@ def markdown(loaded: checkpoint.Loaded, base: dict, results: list[dict], protoco
 def plot(results: list[dict], path: Path, title: str) -> Path | None:
     """Relative performance against speed factor and against projectile interval (and the mass
     rows), with UniCon's and DeepMimic's figures; None when no row of those groups ran."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     groups = [(g, xl) for g, xl in (("speed", "playback speed factor"), ("projectile", "control steps between projectiles"),
                                     ("mass", "body mass factor"))

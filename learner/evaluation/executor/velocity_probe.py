@@ -27,9 +27,11 @@ from collections import defaultdict
 from dataclasses import dataclass
 from typing import Annotated, Any
 
+import mujoco
 import numpy as np
 
 from common.config_limits import validated
+from common.tasks.executor import rewards as rw
 from learner.cli_options import parse_options, refuse, value_list
 from learner.evaluation.executor import probe_cli
 
@@ -45,8 +47,6 @@ class VelocityProbeOptions(probe_cli.ProbeOptions):
 
 def joint_of_dof(model) -> list[str]:
     """The joint name of each non-root DOF `[nv - 6]`."""
-    import mujoco
-
     return [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, int(model.dof_jntid[d])) for d in range(6, model.nv)]
 
 
@@ -69,8 +69,6 @@ class EpisodeProbe(probe_cli.StepHook):
     falls below alpha, and whether the episode holds with the left-out DOF ignored."""
 
     def __init__(self, env, left_out: np.ndarray):
-        from common.tasks.executor import rewards as rw
-
         super().__init__()
         self.pose_terms, self.k, self.alpha = rw.POSE_TERMS, env.ex.reward_scales[4], env.ex.alpha
         self.left_out = left_out

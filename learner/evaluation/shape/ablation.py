@@ -37,9 +37,10 @@ from typing import Annotated, ClassVar
 import numpy as np
 
 from common.config_limits import Limit, at_least, check_limits, validated
+from common.tasks.shape.env import character_preset
 from learner.cli_options import parse_options, refuse, value_list
 from learner.evaluation import harness
-from learner.evaluation.shape import episodes
+from learner.evaluation.shape import episodes, evaluate
 from learner.evaluation.shape.evaluate import ShapeProtocol
 from learner import checkpoint
 
@@ -77,8 +78,6 @@ def describe(cfg) -> str:
 def _still_valid(res_file: Path, loaded: checkpoint.Loaded, args: AblationOptions) -> bool:
     """Whether an earlier results.json measured this checkpoint by this protocol on the body this
     tree builds; a file that is not such a results.json is measured again, not trusted."""
-    from common.tasks.shape.env import character_preset
-
     imitate = loaded.cfg.task.imitate
     try:
         old = json.loads(res_file.read_text())
@@ -101,8 +100,6 @@ def evaluate_one(ckpt: str, out: Path, args: AblationOptions, folder: str = "") 
     if res_file.exists() and _still_valid(res_file, loaded, args):
         print(f"[ablation] reusing {res_file}", flush=True)
         return {"loaded": loaded, **json.loads(res_file.read_text())}
-    from learner.evaluation.shape import evaluate
-
     argv = ["--checkpoint", ckpt, "--shapes", str(args.shapes), "--seed", str(args.seed), "--episode-s",
             str(args.episode_s), "--workers", str(args.workers), "--out", str(target), "--no-render",
             "--fall-rule", args.fall_rule]

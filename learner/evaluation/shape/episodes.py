@@ -7,11 +7,13 @@ here (`shape/evaluate.py`, `shape/morph_demo.py`, `shape/ablation.py` use it).
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 from typing import Any, Callable
 
 import numpy as np
 import torch
 
+from common.characters.character import build_base
 from common.motion.check import body_clearance, root_bob
 from common.policy import GaussianPolicy
 from common.tasks.registry import make_env
@@ -77,10 +79,6 @@ def body_digest(preset: str) -> str:
     """12 hex digits of SHA-1 over a character preset's base body as MJCF (before any shape):
     results measured on another body (a character's geometry changed between commits, as the
     quadruped's shank did on 2026-12-04) are not reused by `morphmimic ablation`."""
-    import hashlib
-
-    from common.characters.character import build_base
-
     return hashlib.sha1(build_base(preset).spec.to_xml().encode()).hexdigest()[:12]
 
 

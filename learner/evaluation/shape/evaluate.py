@@ -29,12 +29,14 @@ import numpy as np
 
 from common.motion.root_height import ROOT_HEIGHT_RULES
 from common.config_limits import FINITE, SEED, Limit, above, at_least, between, check_limits, validated
+from common.tasks.registry import make_env, task_space
 from learner.cli_options import parse_options, refuse, value_list
 from learner.evaluation import harness
 from learner.evaluation.executor import EXECUTOR_ONLY_OPTIONS
 from learner.evaluation.registry import first_value
 from learner.evaluation.shape import episodes
 from learner import checkpoint
+from learner.checkpoint import from_checkpointable
 from learner.evaluation.shape import plots as eval_plots
 from learner.evaluation.shape import morph_demo, swim_metrics
 
@@ -114,10 +116,6 @@ class EvaluateOptions(ShapeProtocol):
 
 def render_episode(loaded: checkpoint.Loaded, params: np.ndarray, seed: int, episode_s: float, out: Path, stem: str,
                    gif: bool, box_scale: float = 1.0, imitate_overrides: dict | None = None) -> list[str]:
-    import dataclasses
-
-    from common.tasks.registry import make_env
-
     task = loaded.cfg.task
     task = dataclasses.replace(task, imitate=dataclasses.replace(task.imitate, **(imitate_overrides or {})))
     env = make_env(harness.eval_task(task, episode_s, box_scale), seed=0)
@@ -245,8 +243,6 @@ def main(argv: list[str]) -> int:
     if morph_only:
         refuse(PROG, f"{', '.join(morph_only)}: morph demo options: use them with --morph")
     loaded = checkpoint.load_trained(args.checkpoint)
-    from common.tasks.registry import make_env, task_space
-
     task = harness.eval_task(loaded.cfg.task, args.episode_s, args.box_scale)
     try:
         env = make_env(task, seed=0)
@@ -298,8 +294,6 @@ def main(argv: list[str]) -> int:
     params = np.array([r["params"] for r in results])
     sampler_state = loaded.state.get("sampler")
     if sampler_state:
-        from learner.checkpoint import from_checkpointable
-
         sampler_state = from_checkpointable(sampler_state)
     train_space = task_space(loaded.cfg.task)
     vm = eval_plots.vm_of(sampler_state, train_space, params) if sampler_state else None

@@ -24,6 +24,7 @@ from typing import Annotated, ClassVar
 import numpy as np
 
 from common.config_limits import FINITE, Limit, at_least, check_limits, validated
+from common.tasks.registry import make_env
 from learner.cli_options import parse_options
 from learner.evaluation import harness
 from learner.evaluation.shape import episodes
@@ -66,8 +67,6 @@ def run_morph(loaded: checkpoint.Loaded, schedule=None, strength: float = 1.0, e
               recorder=None) -> dict:
     """Run one episode at the base shape, morphing along `schedule` (default per
     parameterization); returns {"fell", "seconds", "morphs", "schedule"}."""
-    from common.tasks.registry import make_env
-
     schedule = schedule or SCHEDULES.get(loaded.cfg.task.body.parameterization)
     if not schedule:
         raise SystemExit(f"no default morph schedule for parameterization {loaded.cfg.task.body.parameterization!r}; "

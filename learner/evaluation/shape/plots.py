@@ -23,7 +23,7 @@ from common.params import ParamSpace  # noqa: E402
 def axes_of(space: ParamSpace, names: Sequence[str] | None) -> tuple[int, int]:
     """Indices of the two map parameters (default: the first two of the space); SystemExit naming
     `--map-params` unless they are two different names of it (`sampler.plot.map_axes`)."""
-    from sampler.plot import map_axes
+    from sampler.plot import map_axes  # lazy: heavy (torch, through sampler), only for a map's axes
 
     try:
         return map_axes(space, names, flag="--map-params")
@@ -87,7 +87,7 @@ def save_figure(fig, path: Path) -> Path:
 
 def vm_of(sampler_state: dict[str, Any], train_space: ParamSpace, params: np.ndarray) -> np.ndarray | None:
     """Vm at `[n, d]` parameters from a checkpoint's sampler state (None if it has none)."""
-    from sampler.marginal_value import MarginalValue
+    from sampler.marginal_value import MarginalValue  # lazy: heavy (torch), only with a sampler state
 
     if not sampler_state:
         return None
@@ -100,7 +100,7 @@ def vm_of(sampler_state: dict[str, Any], train_space: ParamSpace, params: np.nda
 def plot_vm_map(sampler_state: dict[str, Any], train_space: ParamSpace, names, path: Path) -> Path | None:
     """The sampler's own Vm map PNG (sampler.plot.plot_state); None when the training space
     has no width along a map axis (a fixed-shape run)."""
-    from sampler.plot import plot_state
+    from sampler.plot import plot_state  # lazy: heavy (torch, through sampler), only with a sampler state
 
     i, j = axes_of(train_space, names)
     if not sampler_state:
@@ -153,7 +153,7 @@ class Recorder(FollowRenderer):
 
     def write_strip(self, path: Path, n: int = 8) -> Path | None:
         """A PNG of `n` frames side by side, evenly spaced over the episode."""
-        import imageio.v3 as iio
+        import imageio.v3 as iio  # lazy: heavy (imageio), only when writing frames
 
         if not self.frames:
             return None
@@ -163,7 +163,7 @@ class Recorder(FollowRenderer):
         return path
 
     def write_gif(self, path: Path, fps: float) -> Path | None:
-        import imageio.v2 as imageio
+        import imageio.v2 as imageio  # lazy: heavy (imageio), only when writing frames
 
         if not self.frames:
             return None

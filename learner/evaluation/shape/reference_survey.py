@@ -29,8 +29,12 @@ from typing import Annotated, ClassVar, Literal
 import numpy as np
 
 from common.config_limits import SEED, Limit, at_least, between, check_limits, validated
-from common.motion.root_height import ROOT_HEIGHT_RULES
+from common.motion.check import body_clearance, root_bob
+from common.motion.root_height import ROOT_HEIGHT_RULES, foot_heights
+from common.tasks.registry import make_env
+from common.tasks.shape import references
 from learner.cli_options import parse_options, value_list
+from learner.evaluation.shape import episodes
 from learner.presets import PRESETS
 
 WALKER_TASKS = ("lower_biped", "quadruped", "biped")
@@ -66,11 +70,6 @@ class ReferencesOptions:
 
 def survey(preset: str, rule: str, clearance_m: float, shapes: np.ndarray) -> dict[str, float]:
     """The reference figures of one (rule, clearance) over `shapes` (rows of the task's space)."""
-    from common.motion.check import body_clearance, root_bob
-    from common.motion.root_height import foot_heights
-    from common.tasks.shape import references
-    from common.tasks.registry import make_env
-
     task = PRESETS[preset][1].task
     retarget = dataclasses.replace(task.imitate.retarget, root_height=rule, body_clearance_m=clearance_m)
     task = dataclasses.replace(task, imitate=dataclasses.replace(task.imitate, retarget=retarget))
@@ -108,9 +107,6 @@ def table(rows: list[dict]) -> str:
 
 
 def main(argv: list[str]) -> int:
-    from common.tasks.registry import make_env
-    from learner.evaluation.shape import episodes
-
     args = parse_options(ReferencesOptions, argv, prog="morphmimic references", description=__doc__)
     env = make_env(PRESETS[args.preset][1].task, seed=0)
     shapes = episodes.eval_shapes(env.space, args.shapes, args.seed)
