@@ -214,8 +214,55 @@ def effort_factors(model: mujoco.MjModel, mass_kg: float, scale: float = 1.0) ->
     return out
 
 
+class TargetTable:
+    """What a step reads of its environments' target frames, per schedule row: each
+    environment's `DatasetScheduler` table (`kinematics_at`) of at most `rows` rows, kept in
+    slot i of arrays `[N, rows, ...]`: the frames' `BodyKin` fields (`pos`, `rot`, `lin`, `ang`,
+    `com`), `qpos`, `qvel`, the PD targets of a zero action (`pd`, `pd_targets`; pd actuation
+    only), and `next_row` `[N]`: the row of the frame one control step ahead as of the last
+    observation (what the next step's PD targets come from). An `ExecutorBatch`'s environments
+    share one, so a step gathers every environment's targets with one index per array; a
+    single environment has one of its own (N = 1). Every row holds what the frame gives alone,
+    so a gather is the per-frame values bit for bit."""
+
+    def __init__(self, n: int, rows: int, bodies: int, nq: int, nv: int, nu: int, pd: bool):
+        self.rows = rows
+        self.pos, self.lin, self.ang = (np.zeros((n, rows, bodies, 3)) for _ in range(3))
+        self.rot = np.zeros((n, rows, bodies, 3, 3))
+        self.com = np.zeros((n, rows, 3))
+        self.qpos, self.qvel = np.zeros((n, rows, nq)), np.zeros((n, rows, nv))
+        self.pd = np.zeros((n, rows, nu)) if pd else None
+        self.next_row = np.zeros(n, np.intp)
+
+    def targets(self, slots: np.ndarray, rows: np.ndarray) -> BodyKin:
+        """`BodyKin` `[M, R]` of rows `[M, R]` of slots `[M]`."""
+        at = (slots[:, None], rows)
+        return BodyKin(self.pos[at], self.rot[at], self.lin[at], self.ang[at], self.com[at])
+
+    def copy_slot(self, other: "TargetTable", mine: int, theirs: int) -> None:
+        """Copy slot `theirs` of `other` into slot `mine` of this table."""
+        for name in ("pos", "rot", "lin", "ang", "com", "qpos", "qvel", "pd", "next_row"):
+            if getattr(self, name) is not None:
+                getattr(self, name)[mine] = getattr(other, name)[theirs]
+
+
+class _RowIndex:
+    """The table `_fill_targets` hands the `DatasetScheduler`: indexing it gives back the index,
+    so `kinematics_at` returns the rows' places in the environment's `TargetTable` slot."""
+
+    def __getitem__(self, index: np.ndarray) -> np.ndarray:
+        return index
+
+
+_ROW_INDEX = _RowIndex()
+
+
 class ExecutorEnv:
     """Gymnasium-style environment (`common.tasks.base.Env`); see the module docstring."""
+
+    _table: TargetTable | None = None
+    _slot = 0
+    _slots = np.zeros(1, np.intp)
 
     @staticmethod
     def param_space(cfg: TaskConfig) -> ParamSpace:
@@ -278,7 +325,7 @@ class ExecutorEnv:
         self.scheduler = DatasetScheduler(self.ref_model, self._motion, self.clip_manager, None, self.dt,
                                           speed=self.ex.speed, at_end=self.ex.at_clip_end, lookback=lookback,
                                           lookahead=self.ex.tau + 1, velocity_window=self.ex.target_velocity_window,
-                                          kinematics=self.reference_kinematics)
+                                          kinematics=self._fill_targets)
         self.balls = [self.model.body(f"projectile{i}").id for i in range(PROJECTILES)] if self.ex.projectile else []
         self._thrown_at = [-1] * len(self.balls)
         self._next_ball = 0
@@ -355,6 +402,27 @@ class ExecutorEnv:
             xpos[r], xmat[r], cvel[r], com[r] = d.xpos, d.xmat, d.cvel, d.subtree_com
         return kinematics_from_arrays(xpos, xmat, cvel, com, m.body_rootid, self.body_slice)
 
+    def _fill_targets(self, qpos: np.ndarray, qvel: np.ndarray) -> _RowIndex:
+        """The `DatasetScheduler`'s kinematics function: R schedule rows' target data (the
+        frames' `reference_kinematics`, qpos, qvel and PD targets) written to rows 0..R-1 of the
+        environment's `TargetTable` slot; the scheduler's table is then the row index itself."""
+        if self._table is None:
+            rows = max(DatasetScheduler.KINEMATICS_ROWS, self.ex.tau + 1)
+            self._table = TargetTable(1, rows, len(self.bodies), self.nq, self.nv, self.nu, self.ex.actuation == "pd")
+        t, s, r = self._table, self._slot, len(qpos)
+        if r > t.rows:
+            raise ValueError(f"{r} schedule rows do not fit the target table's {t.rows}")
+        kin = self.reference_kinematics(qpos, qvel)
+        t.pos[s, :r], t.rot[s, :r], t.lin[s, :r], t.ang[s, :r], t.com[s, :r] = kin.pos, kin.rot, kin.lin, kin.ang, kin.com
+        t.qpos[s, :r], t.qvel[s, :r] = qpos, qvel
+        if t.pd is not None:
+            t.pd[s, :r] = pd_targets(self.layout, qpos, qvel, self.pd_lead_s)
+        return _ROW_INDEX
+
+    def _tabled(self) -> bool:
+        """The targets come from the `TargetTable` (the scheduler is the environment's own `DatasetScheduler`)."""
+        return getattr(self.scheduler, "kinematics", None) == self._fill_targets
+
     def _target_kin(self, frame: TargetFrame) -> BodyKin:
         """`reference_kinematics` of one frame, for schedulers without a kinematics table."""
         # NOTE: memoized on the frame's exact bytes: the frame observed as "next" in one step is
@@ -372,8 +440,10 @@ class ExecutorEnv:
         """`BodyKin` `[tau + 1]` of the target frames 0..tau control steps from now: the
         `DatasetScheduler`'s table rows, or each frame's kinematics (other schedulers)."""
         offsets = range(self.ex.tau + 1)
-        if getattr(self.scheduler, "kinematics", None) is not None:
-            return self.scheduler.kinematics_at(offsets)
+        if self._tabled():
+            rows = self.scheduler.kinematics_at(offsets)
+            self._table.next_row[self._slot] = rows[1]
+            return self._table.targets(self._slots[self._slot : self._slot + 1], rows[None])[0]
         return BodyKin.stack([self._target_kin(self.scheduler.frame(i)) for i in offsets])
 
     def tracking_kinematics(self) -> tuple[BodyKin, BodyKin]:
@@ -545,21 +615,20 @@ def observe(envs: Sequence[ExecutorEnv], actual: BodyKin, targets: BodyKin | Non
     return observation(actual, targets[:, 1:], _stack([env.params for env in envs]))
 
 
-def tracking_errors(envs: Sequence[ExecutorEnv], actual: BodyKin, target: BodyKin, frames: Sequence[TargetFrame],
+def tracking_errors(envs: Sequence[ExecutorEnv], actual: BodyKin, target: BodyKin, qr: np.ndarray, qvel_ref: np.ndarray,
                     qpos_before: Sequence[np.ndarray | None]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Each environment's five reward terms' errors `[N, 5]` (UniCon eq. 5's kernels' arguments,
     in `rewards.TERMS` order) and position errors in metres (`joint_error_m`, `body_error_m`,
     `[N]` each), from the characters' and tracked frames' `BodyKin` `[N]` and the tracked
-    `frames`; an environment's `qpos_before` (its joint angles a control step ago) makes the
-    joint-velocity term compare the step's mean velocity (`ExecutorConfig.joint_velocity = "step_mean"`)."""
+    frames' qpos `qr` `[N, nq]` and qvel `qvel_ref` `[N, nv]`; an environment's `qpos_before`
+    (its joint angles a control step ago) makes the joint-velocity term compare the step's mean
+    velocity (`ExecutorConfig.joint_velocity = "step_mean"`)."""
     first = envs[0]
     q = _stack([env.qpos for env in envs])
-    qr = _stack([f.qpos for f in frames])
     qvel = np.stack([env.data.qvel[: env.nv] for env in envs])  # a copy: step_mean overwrites rows
     for i, before in enumerate(qpos_before):
         if before is not None:
             mujoco.mj_differentiatePos(first.ref_model, qvel[i], first.dt, before, q[i])
-    qvel_ref = _stack([f.qvel for f in frames])
     lay = first.layout
     rel, rel_ref = actual.relative_positions(), target.relative_positions()
     errors = np.stack([
@@ -586,15 +655,21 @@ def step_envs(envs: Sequence[ExecutorEnv], actions: np.ndarray) -> tuple[np.ndar
     (with the environment's own generator) and the episode bookkeeping run per environment."""
     first = envs[0]
     ex, n = first.ex, len(envs)
+    table = first._table
+    tabled = all(env._table is table and env._tabled() for env in envs)
+    slots = np.fromiter((env._slot for env in envs), np.intp, n) if tabled else None
     a = np.asarray(actions, dtype=np.float64)
     if not np.isfinite(a).all():  # checked first: nan_to_num on every step cost 30 us
         a = np.nan_to_num(a)
     if ex.actuation == "torque":
         ctrl = np.clip(a, -1.0, 1.0)
     else:
-        nxt = [env.scheduler.frame(1) for env in envs]
-        ctrl = pd_targets(first.layout, _stack([f.qpos for f in nxt]), _stack([f.qvel for f in nxt]), first.pd_lead_s)
-        ctrl = ctrl + ex.pd_action_scale * np.clip(a, -3.0, 3.0)
+        if tabled:  # the next frames' PD targets, computed once per schedule row
+            zero = table.pd[slots, table.next_row[slots]]
+        else:
+            nxt = [env.scheduler.frame(1) for env in envs]
+            zero = pd_targets(first.layout, _stack([f.qpos for f in nxt]), _stack([f.qvel for f in nxt]), first.pd_lead_s)
+        ctrl = zero + ex.pd_action_scale * np.clip(a, -3.0, 3.0)
     obs = np.zeros((n, first.obs_dim), np.float32)
     rewards = np.zeros(n)
     terminated = np.zeros(n, bool)
@@ -624,9 +699,18 @@ def step_envs(envs: Sequence[ExecutorEnv], actions: np.ndarray) -> tuple[np.ndar
         return obs, rewards, terminated, truncated, infos
     running = [envs[i] for i in live]
     actual = character_kinematics(running)
-    targets = BodyKin.stack([env.target_kinematics() for env in running])
-    frames = [env.scheduler.frame(0) for env in running]
-    errors, positions = tracking_errors(running, actual, targets[:, 0], frames, befores)
+    if tabled:  # every environment's rows looked up by its scheduler, gathered at once
+        on = slots[live]
+        offsets = range(ex.tau + 1)
+        rows = np.array([env.scheduler.kinematics_at(offsets) for env in running])
+        table.next_row[on] = rows[:, 1]
+        targets = table.targets(on, rows)
+        qr, qvel_ref = table.qpos[on, rows[:, 0]], table.qvel[on, rows[:, 0]]
+    else:
+        targets = BodyKin.stack([env.target_kinematics() for env in running])
+        frames = [env.scheduler.frame(0) for env in running]
+        qr, qvel_ref = _stack([f.qpos for f in frames]), _stack([f.qvel for f in frames])
+    errors, positions = tracking_errors(running, actual, targets[:, 0], qr, qvel_ref, befores)
     terms = rw.term_values(errors, ex.reward_scales)
     step_rewards = rw.weighted_sums(terms, ex.reward_weights)
     ends = rw.terminations(terms, ex.reward_weights, ex.termination, ex.alpha, ex.terminate_on)
