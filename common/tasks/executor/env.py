@@ -48,7 +48,7 @@ from common.motion.mirror import MIRROR_SUFFIX, mirrored_id, source_id
 from common.motion.reference import CharacterMotion
 from common.params import ParamSpace
 from common.tasks.executor import rewards as rw
-from common.tasks.base import TaskConfig, diverged_step, step_physics
+from common.tasks.base import _DIVERGENCE_WARNINGS, TaskConfig, diverged_step
 from common.tasks.executor.observations import BodyKin, kinematics_from_arrays, observation, read_kinematics, read_kinematics_batch
 from common.tasks.observations import JointLayout
 from common.tasks.executor.schedulers.base import DatasetScheduler, Scheduler, TargetFrame
@@ -615,16 +615,16 @@ def observe(envs: Sequence[ExecutorEnv], actual: BodyKin, targets: BodyKin | Non
     return observation(actual, targets[:, 1:], _stack([env.params for env in envs]))
 
 
-def tracking_errors(envs: Sequence[ExecutorEnv], actual: BodyKin, target: BodyKin, qr: np.ndarray, qvel_ref: np.ndarray,
+def tracking_errors(envs: Sequence[ExecutorEnv], q: np.ndarray, actual: BodyKin, target: BodyKin, qr: np.ndarray, qvel_ref: np.ndarray,
                     qpos_before: Sequence[np.ndarray | None]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Each environment's five reward terms' errors `[N, 5]` (UniCon eq. 5's kernels' arguments,
     in `rewards.TERMS` order) and position errors in metres (`joint_error_m`, `body_error_m`,
-    `[N]` each), from the characters' and tracked frames' `BodyKin` `[N]` and the tracked
+    `[N]` each), from the characters' qpos `q` `[N, nq]` (C-ordered), their and the tracked
+    frames' `BodyKin` `[N]` and the tracked
     frames' qpos `qr` `[N, nq]` and qvel `qvel_ref` `[N, nv]`; an environment's `qpos_before`
     (its joint angles a control step ago) makes the joint-velocity term compare the step's mean
     velocity (`ExecutorConfig.joint_velocity = "step_mean"`)."""
     first = envs[0]
-    q = _stack([env.qpos for env in envs])
     qvel = np.stack([env.data.qvel[: env.nv] for env in envs])  # a copy: step_mean overwrites rows
     for i, before in enumerate(qpos_before):
         if before is not None:
@@ -651,8 +651,9 @@ def step_envs(envs: Sequence[ExecutorEnv], actions: np.ndarray) -> tuple[np.ndar
     one info dict each (see `ExecutorEnv`). Actuation, kinematics features, reward terms,
     termination and observations are array operations over the N environments, each state's
     arithmetic the same as alone (so environment i's results are those of stepping it alone,
-    bit for bit); physics (`step_physics`, with its divergence check), the scheduler's advance
-    (with the environment's own generator) and the episode bookkeeping run per environment."""
+    bit for bit); physics (`mj_step`; `step_physics`'s divergence check runs over all N), the
+    scheduler's advance (with the environment's own generator) and the episode bookkeeping run
+    per environment."""
     first = envs[0]
     ex, n = first.ex, len(envs)
     table = first._table
@@ -675,25 +676,34 @@ def step_envs(envs: Sequence[ExecutorEnv], actions: np.ndarray) -> tuple[np.ndar
     terminated = np.zeros(n, bool)
     truncated = np.zeros(n, bool)
     infos: list[dict] = [{} for _ in range(n)]
+    step_mean = ex.joint_velocity == "step_mean"
+    befores_all = [env.qpos.copy() for env in envs] if step_mean else [None] * n
+    # Physics of every environment, then `step_physics`'s divergence check over all N at once
+    # (the divergence warnings' count changed, or a non-finite qpos): one array op instead of
+    # four per environment.
+    warned = np.array([env.data.warning.number for env in envs])
+    for env, c in zip(envs, ctrl):
+        env.data.ctrl[:] = c
+        mujoco.mj_step(env.model, env.data, nstep=env.cfg.substeps)
+    warned -= np.array([env.data.warning.number for env in envs])
+    qpos = np.array([env.data.qpos for env in envs])
+    diverged = (warned[:, _DIVERGENCE_WARNINGS].sum(axis=1) != 0) | ~np.isfinite(qpos).all(axis=1)
     live, befores, rescheduled = [], [], []
     for i, env in enumerate(envs):
-        env.data.ctrl[:] = ctrl[i]
-        before = env.qpos.copy() if ex.joint_velocity == "step_mean" else None
-        diverged = step_physics(env.model, env.data, env.cfg.substeps)
         env.k += 1
         if env.balls:
             env._expire_projectiles()
-        if diverged:
+        if diverged[i]:
             env._end_segment(False)
             obs[i], rewards[i], terminated[i], truncated[i], infos[i] = diverged_step(first.obs_dim, ended_by="divergence")
             continue
-        moved = env.scheduler.advance(env.rng, env.qpos.copy())
+        moved = env.scheduler.advance(env.rng, qpos[i, : env.nq])  # a row of a copy: the character's qpos now
         if moved:
             env.grace = env.k + ex.catch_up_steps
             env._end_segment(True)
             env._segment_clip = getattr(env.scheduler, "clip_id", "")
         live.append(i)
-        befores.append(before)
+        befores.append(befores_all[i])
         rescheduled.append(moved)
     if not live:
         return obs, rewards, terminated, truncated, infos
@@ -710,11 +720,14 @@ def step_envs(envs: Sequence[ExecutorEnv], actions: np.ndarray) -> tuple[np.ndar
         targets = BodyKin.stack([env.target_kinematics() for env in running])
         frames = [env.scheduler.frame(0) for env in running]
         qr, qvel_ref = _stack([f.qpos for f in frames]), _stack([f.qvel for f in frames])
-    errors, positions = tracking_errors(running, actual, targets[:, 0], qr, qvel_ref, befores)
+    errors, positions = tracking_errors(running, qpos[live, : first.nq], actual, targets[:, 0], qr, qvel_ref, befores)
     terms = rw.term_values(errors, ex.reward_scales)
     step_rewards = rw.weighted_sums(terms, ex.reward_weights)
     ends = rw.terminations(terms, ex.reward_weights, ex.termination, ex.alpha, ex.terminate_on)
     obs[live] = observe(running, actual, targets)
+    rewards[live] = step_rewards
+    # NOTE: Python floats by `tolist` (one call per array), not float() of each numpy scalar
+    term_rows, dists = terms.tolist(), {k: v.tolist() for k, v in positions.items()}
     for j, (i, env) in enumerate(zip(live, running)):
         ended_by = ends[j]
         if ended_by is None and env.k < env.grace and ex.catch_up_ends == "on_track":
@@ -723,9 +736,8 @@ def step_envs(envs: Sequence[ExecutorEnv], actions: np.ndarray) -> tuple[np.ndar
         trunc = not term and (env.k >= env.cfg.episode_steps or env.scheduler.done)
         if term or (trunc and env.scheduler.done):  # a time limit says nothing of the clip
             env._end_segment(not term)
-        env.last_terms = {name: float(v) for name, v in zip(rw.TERMS, terms[j])}
-        rewards[i], terminated[i], truncated[i] = step_rewards[j], term, trunc
+        env.last_terms = dict(zip(rw.TERMS, term_rows[j]))
+        terminated[i], truncated[i] = term, trunc
         infos[i] = {"diverged": False, "terms": env.last_terms, "ended_by": ended_by if term else None,
-                    "rescheduled": rescheduled[j], **{k: float(v[j]) for k, v in positions.items()},
-                    **env.scheduler.status()}
+                    "rescheduled": rescheduled[j], **{k: v[j] for k, v in dists.items()}, **env.scheduler.status()}
     return obs, rewards, terminated, truncated, infos

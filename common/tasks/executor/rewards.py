@@ -36,7 +36,8 @@ def _square_each(x: np.ndarray) -> np.ndarray:
     """x ** 2 of each element as a numpy scalar squares it (libm's pow), which differs from the
     array square (x * x) in the last bit for about one value in a thousand."""
     x = np.asarray(x, dtype=np.float64)
-    return np.array([v ** 2 for v in x.reshape(-1)]).reshape(x.shape)
+    # NOTE: Python floats' ** is the same libm pow as numpy scalars', without a numpy scalar per element
+    return np.array([v ** 2 for v in x.reshape(-1).tolist()]).reshape(x.shape)
 
 
 def _contiguous(x) -> np.ndarray:
@@ -134,7 +135,7 @@ def terminations(terms: np.ndarray, weights: tuple[float, ...], rule: str, alpha
     if rule == "per_term":
         watched = [TERMS.index(name) for name in watch]
         below = terms[:, watched] < alpha
-        return [watch[int(np.argmax(row))] if row.any() else None for row in below]
+        return [watch[f] if hit else None for f, hit in zip(np.argmax(below, axis=1).tolist(), below.any(axis=1).tolist())]
     if rule == "sum":
         return ["sum" if s < alpha else None for s in weighted_sums(terms, weights)]
     if rule == "none":
