@@ -32,6 +32,7 @@ Robustness hooks (zero-shot tests, UniCon 8.5): `scale_mass` makes the body heav
 from __future__ import annotations
 
 import functools
+from dataclasses import dataclass
 import math
 from typing import Sequence
 
@@ -49,7 +50,8 @@ from common.motion.reference import CharacterMotion
 from common.params import ParamSpace
 from common.tasks.executor import rewards as rw
 from common.tasks.base import _DIVERGENCE_WARNINGS, TaskConfig, diverged_step
-from common.tasks.executor.observations import BodyKin, kinematics_from_arrays, observation, read_kinematics, read_kinematics_batch
+from common.tasks.executor.observations import (BodyKin, agent_features, kinematics_from_arrays, observation_of,
+                                                read_kinematics, read_kinematics_batch)
 from common.tasks.observations import JointLayout
 from common.tasks.executor.schedulers.base import DatasetScheduler, Scheduler, TargetFrame
 
@@ -218,8 +220,9 @@ class TargetTable:
     """What a step reads of its environments' target frames, per schedule row: each
     environment's `DatasetScheduler` table (`kinematics_at`) of at most `rows` rows, kept in
     slot i of arrays `[N, rows, ...]`: the frames' `BodyKin` fields (`pos`, `rot`, `lin`, `ang`,
-    `com`), `qpos`, `qvel`, the PD targets of a zero action (`pd`, `pd_targets`; pd actuation
-    only), and `next_row` `[N]`: the row of the frame one control step ahead as of the last
+    `com`), what the step derives from a frame alone (`rel`: `BodyKin.relative_positions`;
+    `features`: o(X~), `agent_features`), `qpos`, `qvel`, the PD targets of a zero action (`pd`,
+    `pd_targets`; pd actuation only), and `next_row` `[N]`: the row of the frame one control step ahead as of the last
     observation (what the next step's PD targets come from). An `ExecutorBatch`'s environments
     share one, so a step gathers every environment's targets with one index per array; a
     single environment has one of its own (N = 1). Every row holds what the frame gives alone,
@@ -230,6 +233,8 @@ class TargetTable:
         self.pos, self.lin, self.ang = (np.zeros((n, rows, bodies, 3)) for _ in range(3))
         self.rot = np.zeros((n, rows, bodies, 3, 3))
         self.com = np.zeros((n, rows, 3))
+        self.rel = np.zeros((n, rows, bodies - 1, 3))
+        self.features = np.zeros((n, rows, 13 + 15 * (bodies - 1)))
         self.qpos, self.qvel = np.zeros((n, rows, nq)), np.zeros((n, rows, nv))
         self.pd = np.zeros((n, rows, nu)) if pd else None
         self.next_row = np.zeros(n, np.intp)
@@ -241,7 +246,7 @@ class TargetTable:
 
     def copy_slot(self, other: "TargetTable", mine: int, theirs: int) -> None:
         """Copy slot `theirs` of `other` into slot `mine` of this table."""
-        for name in ("pos", "rot", "lin", "ang", "com", "qpos", "qvel", "pd", "next_row"):
+        for name in ("pos", "rot", "lin", "ang", "com", "rel", "features", "qpos", "qvel", "pd", "next_row"):
             if getattr(self, name) is not None:
                 getattr(self, name)[mine] = getattr(other, name)[theirs]
 
@@ -404,20 +409,26 @@ class ExecutorEnv:
 
     def _fill_targets(self, qpos: np.ndarray, qvel: np.ndarray) -> _RowIndex:
         """The `DatasetScheduler`'s kinematics function: R schedule rows' target data (the
-        frames' `reference_kinematics`, qpos, qvel and PD targets) written to rows 0..R-1 of the
+        frames' `reference_kinematics` and the features the step derives from each frame alone,
+        qpos, qvel and PD targets) written to rows 0..R-1 of the
         environment's `TargetTable` slot; the scheduler's table is then the row index itself."""
-        if self._table is None:
-            rows = max(DatasetScheduler.KINEMATICS_ROWS, self.ex.tau + 1)
-            self._table = TargetTable(1, rows, len(self.bodies), self.nq, self.nv, self.nu, self.ex.actuation == "pd")
-        t, s, r = self._table, self._slot, len(qpos)
+        t, s, r = self._own_table(), self._slot, len(qpos)
         if r > t.rows:
             raise ValueError(f"{r} schedule rows do not fit the target table's {t.rows}")
         kin = self.reference_kinematics(qpos, qvel)
         t.pos[s, :r], t.rot[s, :r], t.lin[s, :r], t.ang[s, :r], t.com[s, :r] = kin.pos, kin.rot, kin.lin, kin.ang, kin.com
+        t.rel[s, :r], t.features[s, :r] = kin.relative_positions(), agent_features(kin)
         t.qpos[s, :r], t.qvel[s, :r] = qpos, qvel
         if t.pd is not None:
             t.pd[s, :r] = pd_targets(self.layout, qpos, qvel, self.pd_lead_s)
         return _ROW_INDEX
+
+    def _own_table(self) -> TargetTable:
+        """The environment's `TargetTable` (one of its own, made on first use, unless a batch gave it one)."""
+        if self._table is None:
+            rows = max(DatasetScheduler.KINEMATICS_ROWS, self.ex.tau + 1)
+            self._table = TargetTable(1, rows, len(self.bodies), self.nq, self.nv, self.nu, self.ex.actuation == "pd")
+        return self._table
 
     def _tabled(self) -> bool:
         """The targets come from the `TargetTable` (the scheduler is the environment's own `DatasetScheduler`)."""
@@ -607,30 +618,78 @@ def character_kinematics(envs: Sequence[ExecutorEnv]) -> BodyKin:
     return read_kinematics_batch(envs[0].model, [env.data for env in envs], envs[0].body_slice)
 
 
-def observe(envs: Sequence[ExecutorEnv], actual: BodyKin, targets: BodyKin | None = None) -> np.ndarray:
+@dataclass(frozen=True)
+class Targets:
+    """What a step reads of M environments' target frames: the tracked frame's (now: `com`
+    `[M, 3]`, body positions `pos` `[M, B, 3]`, `rel` `[M, B - 1, 3]`
+    (`BodyKin.relative_positions`), `qpos` `[M, nq]`, `qvel` `[M, nv]`) and the observed frames'
+    (1..tau control steps ahead: o(X~) `features` `[M, tau, F]`, root positions `root_pos`
+    `[M, tau, 3]` and rotations `root_rot` `[M, tau, 3, 3]`)."""
+
+    com: np.ndarray
+    pos: np.ndarray
+    rel: np.ndarray
+    qpos: np.ndarray
+    qvel: np.ndarray
+    features: np.ndarray
+    root_pos: np.ndarray
+    root_rot: np.ndarray
+
+
+def target_rows(envs: Sequence[ExecutorEnv], slots: np.ndarray | None) -> Targets:
+    """The environments' `Targets` now. With `slots` (the environments share a `TargetTable`,
+    these are their slots, and each is `_tabled`): each scheduler looks its rows up
+    (`kinematics_at`), the rows one step ahead become the next PD targets' (`next_row`), and
+    every array is one gather from the table. Else computed from each scheduler's frames."""
+    tau = envs[0].ex.tau
+    if slots is not None:
+        table = envs[0]._table
+        rows = np.array([env.scheduler.kinematics_at(range(tau + 1)) for env in envs])
+        table.next_row[slots] = rows[:, 1]
+        now = (slots, rows[:, 0])
+        ahead = (slots[:, None], rows[:, 1:])
+        return Targets(table.com[now], table.pos[now], table.rel[now], table.qpos[now], table.qvel[now],
+                       table.features[ahead], table.pos[ahead + (0,)], table.rot[ahead + (0,)])
+    kin = BodyKin.stack([env.target_kinematics() for env in envs])
+    frames = [env.scheduler.frame(0) for env in envs]
+    now, ahead = kin[:, 0], kin[:, 1:]
+    return Targets(now.com, now.pos, now.relative_positions(), _stack([f.qpos for f in frames]),
+                   _stack([f.qvel for f in frames]), agent_features(ahead), ahead.pos[..., 0, :], ahead.rot[..., 0, :, :])
+
+
+def table_slots(envs: Sequence[ExecutorEnv]) -> np.ndarray | None:
+    """The environments' slots in the `TargetTable` they share, or None (`target_rows`)."""
+    table = envs[0]._own_table()
+    if all(env._table is table and env._tabled() for env in envs):
+        return np.fromiter((env._slot for env in envs), np.intp, len(envs))
+    return None
+
+
+def observe(envs: Sequence[ExecutorEnv], actual: BodyKin, targets: Targets | None = None) -> np.ndarray:
     """Observations `[N, obs_dim]` of the environments (`observation`) from their characters'
-    `BodyKin` `[N]` and their target frames' `[N, tau + 1]` (looked up when None)."""
+    `BodyKin` `[N]` and their `Targets` (looked up when None)."""
     if targets is None:
-        targets = BodyKin.stack([env.target_kinematics() for env in envs])
-    return observation(actual, targets[:, 1:], _stack([env.params for env in envs]))
+        targets = target_rows(envs, table_slots(envs))
+    params = _stack([env.params for env in envs])
+    return observation_of(actual, targets.features, targets.root_pos, targets.root_rot, params)
 
 
-def tracking_errors(envs: Sequence[ExecutorEnv], q: np.ndarray, actual: BodyKin, target: BodyKin, qr: np.ndarray, qvel_ref: np.ndarray,
+def tracking_errors(envs: Sequence[ExecutorEnv], q: np.ndarray, actual: BodyKin, target: Targets,
                     qpos_before: Sequence[np.ndarray | None]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Each environment's five reward terms' errors `[N, 5]` (UniCon eq. 5's kernels' arguments,
     in `rewards.TERMS` order) and position errors in metres (`joint_error_m`, `body_error_m`,
-    `[N]` each), from the characters' qpos `q` `[N, nq]` (C-ordered), their and the tracked
-    frames' `BodyKin` `[N]` and the tracked
-    frames' qpos `qr` `[N, nq]` and qvel `qvel_ref` `[N, nv]`; an environment's `qpos_before`
-    (its joint angles a control step ago) makes the joint-velocity term compare the step's mean
-    velocity (`ExecutorConfig.joint_velocity = "step_mean"`)."""
+    `[N]` each), from the characters' qpos `q` `[N, nq]` (C-ordered) and `BodyKin` `[N]` and
+    the tracked frames' (`Targets`); an environment's `qpos_before` (its joint angles a control
+    step ago) makes the joint-velocity term compare the step's mean velocity
+    (`ExecutorConfig.joint_velocity = "step_mean"`)."""
     first = envs[0]
+    qr, qvel_ref = target.qpos, target.qvel
     qvel = np.stack([env.data.qvel[: env.nv] for env in envs])  # a copy: step_mean overwrites rows
     for i, before in enumerate(qpos_before):
         if before is not None:
             mujoco.mj_differentiatePos(first.ref_model, qvel[i], first.dt, before, q[i])
     lay = first.layout
-    rel, rel_ref = actual.relative_positions(), target.relative_positions()
+    rel, rel_ref = actual.relative_positions(), target.rel
     errors = np.stack([
         rw.com_errors(actual.com, target.com),
         rw.root_rotation_errors(q[:, 3:7], qr[:, 3:7]),
@@ -657,15 +716,14 @@ def step_envs(envs: Sequence[ExecutorEnv], actions: np.ndarray) -> tuple[np.ndar
     first = envs[0]
     ex, n = first.ex, len(envs)
     table = first._table
-    tabled = all(env._table is table and env._tabled() for env in envs)
-    slots = np.fromiter((env._slot for env in envs), np.intp, n) if tabled else None
+    slots = table_slots(envs)
     a = np.asarray(actions, dtype=np.float64)
     if not np.isfinite(a).all():  # checked first: nan_to_num on every step cost 30 us
         a = np.nan_to_num(a)
     if ex.actuation == "torque":
         ctrl = np.clip(a, -1.0, 1.0)
     else:
-        if tabled:  # the next frames' PD targets, computed once per schedule row
+        if slots is not None:  # the next frames' PD targets, computed once per schedule row
             zero = table.pd[slots, table.next_row[slots]]
         else:
             nxt = [env.scheduler.frame(1) for env in envs]
@@ -709,18 +767,8 @@ def step_envs(envs: Sequence[ExecutorEnv], actions: np.ndarray) -> tuple[np.ndar
         return obs, rewards, terminated, truncated, infos
     running = [envs[i] for i in live]
     actual = character_kinematics(running)
-    if tabled:  # every environment's rows looked up by its scheduler, gathered at once
-        on = slots[live]
-        offsets = range(ex.tau + 1)
-        rows = np.array([env.scheduler.kinematics_at(offsets) for env in running])
-        table.next_row[on] = rows[:, 1]
-        targets = table.targets(on, rows)
-        qr, qvel_ref = table.qpos[on, rows[:, 0]], table.qvel[on, rows[:, 0]]
-    else:
-        targets = BodyKin.stack([env.target_kinematics() for env in running])
-        frames = [env.scheduler.frame(0) for env in running]
-        qr, qvel_ref = _stack([f.qpos for f in frames]), _stack([f.qvel for f in frames])
-    errors, positions = tracking_errors(running, qpos[live, : first.nq], actual, targets[:, 0], qr, qvel_ref, befores)
+    targets = target_rows(running, None if slots is None else slots[live])
+    errors, positions = tracking_errors(running, qpos[live, : first.nq], actual, targets, befores)
     terms = rw.term_values(errors, ex.reward_scales)
     step_rewards = rw.weighted_sums(terms, ex.reward_weights)
     ends = rw.terminations(terms, ex.reward_weights, ex.termination, ex.alpha, ex.terminate_on)

@@ -142,9 +142,14 @@ def agent_features(kin: BodyKin) -> np.ndarray:
 def target_root_pose(actual: BodyKin, target: BodyKin) -> np.ndarray:
     """y(X~; X) `[..., 9]`: the target root's position (3) and rotation (6) in the actual root
     frame (leading axes broadcast: one actual state against several targets)."""
-    root_rot = actual.rot[..., 0, :, :]
-    offset = (target.pos[..., 0, :] - actual.pos[..., 0, :])[..., None, :] @ root_rot
-    return np.concatenate([offset[..., 0, :], _six(np.swapaxes(root_rot, -1, -2) @ target.rot[..., 0, :, :])], axis=-1)
+    return root_pose_in(actual.pos[..., 0, :], actual.rot[..., 0, :, :], target.pos[..., 0, :], target.rot[..., 0, :, :])
+
+
+def root_pose_in(root_pos: np.ndarray, root_rot: np.ndarray, pos: np.ndarray, rot: np.ndarray) -> np.ndarray:
+    """`target_root_pose` from the roots alone: the pose `pos` `[..., 3]`, `rot` `[..., 3, 3]`
+    in the frame of the actual root `root_pos` `[..., 3]`, `root_rot` `[..., 3, 3]` -> `[..., 9]`."""
+    offset = (pos - root_pos)[..., None, :] @ root_rot
+    return np.concatenate([offset[..., 0, :], _six(np.swapaxes(root_rot, -1, -2) @ rot)], axis=-1)
 
 
 def observation(actual: BodyKin, targets: BodyKin | list[BodyKin], params: np.ndarray) -> np.ndarray:
@@ -156,10 +161,19 @@ def observation(actual: BodyKin, targets: BodyKin | list[BodyKin], params: np.nd
     lead = actual.com.shape[:-1]
     if isinstance(targets, list):
         targets = BodyKin.stack(targets, axis=len(lead))
-    tau = targets.com.shape[-2]
+    return observation_of(actual, agent_features(targets), targets.pos[..., 0, :], targets.rot[..., 0, :, :], params)
+
+
+def observation_of(actual: BodyKin, features: np.ndarray, root_pos: np.ndarray, root_rot: np.ndarray,
+                   params: np.ndarray) -> np.ndarray:
+    """`observation` from the targets' o(X~) `features` `[..., tau, F]` (`agent_features`, which
+    depends on the frame alone: the executor computes it once per schedule row) and their roots'
+    positions `[..., tau, 3]` and rotations `[..., tau, 3, 3]`."""
+    lead = actual.com.shape[:-1]
+    tau = features.shape[-2]
     at = (slice(None),) * len(lead) + (None,)
-    wide = BodyKin(actual.pos[at], actual.rot[at], actual.lin[at], actual.ang[at], actual.com[at])
-    per_target = np.concatenate([agent_features(targets), target_root_pose(wide, targets)], axis=-1)
+    pose = root_pose_in(actual.pos[at + (0,)], actual.rot[at + (0,)], root_pos, root_rot)
+    per_target = np.concatenate([features, pose], axis=-1)
     parts = [np.broadcast_to(np.asarray(params, dtype=np.float64), (*lead, np.shape(params)[-1])),
              agent_features(actual), per_target.reshape(*lead, tau * per_target.shape[-1])]
     return np.concatenate(parts, axis=-1).astype(np.float32)
