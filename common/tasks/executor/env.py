@@ -32,6 +32,7 @@ Robustness hooks (zero-shot tests, UniCon 8.5): `scale_mass` makes the body heav
 from __future__ import annotations
 
 import functools
+import operator
 from dataclasses import dataclass
 import math
 from typing import Sequence
@@ -50,8 +51,7 @@ from common.motion.reference import CharacterMotion
 from common.params import ParamSpace
 from common.tasks.executor import rewards as rw
 from common.tasks.base import _DIVERGENCE_WARNINGS, TaskConfig, diverged_step
-from common.tasks.executor.observations import (BodyKin, agent_features, kinematics_from_arrays, observation_of,
-                                                read_kinematics, read_kinematics_batch)
+from common.tasks.executor.observations import BodyKin, agent_features, kinematics_from_arrays, observation_of
 from common.tasks.observations import JointLayout
 from common.tasks.executor.schedulers.base import DatasetScheduler, Scheduler, TargetFrame
 
@@ -391,6 +391,16 @@ class ExecutorEnv:
 
     # ---- state ----
 
+    def views(self, data: mujoco.MjData, names: tuple[str, ...]) -> tuple[np.ndarray, ...]:
+        """`data`'s arrays `names` (attribute paths; numpy views of its memory, which follow
+        every step and reset), made once per MjData the environment reads. NOTE: each attribute read builds a
+        new numpy wrapper (about 0.5 us), and a step read some 100 of them."""
+        cache = self.__dict__.setdefault("_views", {})
+        hit = cache.get(names)
+        if hit is None or hit[0] is not data:
+            hit = cache[names] = (data, tuple(operator.attrgetter(name)(data) for name in names))
+        return hit[1]
+
     def reference_kinematics(self, qpos: np.ndarray, qvel: np.ndarray) -> BodyKin:
         """`BodyKin` `[R]` of R frames of the character (`qpos` `[R, nq]`, `qvel` `[R, nv]`): the
         same MuJoCo calls on each frame as on the character (`mj_kinematics`, `mj_comPos`,
@@ -399,12 +409,13 @@ class ExecutorEnv:
         d, m, n = self.ref_data, self.ref_model, len(qpos)
         xpos, xmat = np.empty((n, m.nbody, 3)), np.empty((n, m.nbody, 9))
         cvel, com = np.empty((n, m.nbody, 6)), np.empty((n, m.nbody, 3))
+        d_qpos, d_qvel, d_xpos, d_xmat, d_cvel, d_com = self.views(d, ("qpos", "qvel", "xpos", "xmat", "cvel", "subtree_com"))
         for r in range(n):
-            d.qpos[:], d.qvel[:] = qpos[r], qvel[r]
+            d_qpos[:], d_qvel[:] = qpos[r], qvel[r]
             mujoco.mj_kinematics(m, d)
             mujoco.mj_comPos(m, d)
             mujoco.mj_comVel(m, d)
-            xpos[r], xmat[r], cvel[r], com[r] = d.xpos, d.xmat, d.cvel, d.subtree_com
+            xpos[r], xmat[r], cvel[r], com[r] = d_xpos, d_xmat, d_cvel, d_com
         return kinematics_from_arrays(xpos, xmat, cvel, com, m.body_rootid, self.body_slice)
 
     def _fill_targets(self, qpos: np.ndarray, qvel: np.ndarray) -> _RowIndex:
@@ -615,7 +626,14 @@ def character_kinematics(envs: Sequence[ExecutorEnv]) -> BodyKin:
         mujoco.mj_kinematics(env.model, env.data)
         mujoco.mj_comPos(env.model, env.data)
         mujoco.mj_comVel(env.model, env.data)
-    return read_kinematics_batch(envs[0].model, [env.data for env in envs], envs[0].body_slice)
+    views = [env.views(env.data, KINEMATICS_ARRAYS) for env in envs]
+    return kinematics_from_arrays(*(_stack(arrays) for arrays in zip(*views)), envs[0].model.body_rootid, envs[0].body_slice)
+
+
+KINEMATICS_ARRAYS = ("xpos", "xmat", "cvel", "subtree_com")
+"""The MjData arrays `kinematics_from_arrays` reads."""
+STEP_ARRAYS = ("warning.number", "ctrl", "qpos", "qvel")
+"""The MjData arrays a step reads and writes besides those."""
 
 
 @dataclass(frozen=True)
@@ -691,7 +709,7 @@ def tracking_errors(envs: Sequence[ExecutorEnv], q: np.ndarray, actual: BodyKin,
     (`ExecutorConfig.joint_velocity = "step_mean"`)."""
     first = envs[0]
     qr, qvel_ref = target.qpos, target.qvel
-    qvel = np.stack([env.data.qvel[: env.nv] for env in envs])  # a copy: step_mean overwrites rows
+    qvel = np.stack([env.views(env.data, STEP_ARRAYS)[3][: env.nv] for env in envs])  # a copy: step_mean overwrites rows
     for i, before in enumerate(qpos_before):
         if before is not None:
             mujoco.mj_differentiatePos(first.ref_model, qvel[i], first.dt, before, q[i])
@@ -742,12 +760,14 @@ def step_envs(envs: Sequence[ExecutorEnv], actions: np.ndarray) -> tuple[np.ndar
     # Physics of every environment, then `step_physics`'s divergence check over all N at once
     # (the divergence warnings' count changed, or a non-finite qpos): one array op instead of
     # four per environment.
-    warned = np.array([env.data.warning.number for env in envs])
-    for env, c in zip(envs, ctrl):
-        env.data.ctrl[:] = c
-        mujoco.mj_step(env.model, env.data, nstep=env.cfg.substeps)
-    warned -= np.array([env.data.warning.number for env in envs])
-    qpos = np.array([env.data.qpos for env in envs])
+    views = [env.views(env.data, STEP_ARRAYS) for env in envs]
+    warned = np.array([v[0] for v in views])
+    substeps = first.cfg.substeps
+    for env, v, c in zip(envs, views, ctrl):
+        v[1][:] = c
+        mujoco.mj_step(env.model, env.data, nstep=substeps)
+    warned -= np.array([v[0] for v in views])
+    qpos = np.array([v[2] for v in views])
     warned = warned[:, _DIVERGENCE_WARNINGS]
     if warned.any() or not np.isfinite(qpos).all():  # else no environment diverged: two calls in the common case
         diverged = ((warned.sum(axis=1) != 0) | ~np.isfinite(qpos).all(axis=1)).tolist()

@@ -96,14 +96,6 @@ def read_kinematics(model: mujoco.MjModel, data: mujoco.MjData, bodies: slice) -
     return kinematics_from_arrays(data.xpos, data.xmat, data.cvel, data.subtree_com, model.body_rootid, bodies)
 
 
-def read_kinematics_batch(model: mujoco.MjModel, datas: Sequence[mujoco.MjData], bodies: slice) -> BodyKin:
-    """`BodyKin` `[N, B]` of `bodies` in N datas of `model` (`read_kinematics` of each, stacked)."""
-    def stack(name: str) -> np.ndarray:  # a view for one data: the arrays are copied out below
-        return getattr(datas[0], name)[None] if len(datas) == 1 else np.stack([getattr(d, name) for d in datas])
-
-    return kinematics_from_arrays(stack("xpos"), stack("xmat"), stack("cvel"), stack("subtree_com"), model.body_rootid, bodies)
-
-
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Row-wise a x b for `[..., 3]` arrays: `np.cross`'s arithmetic (the same products and
     differences, so bit for bit its result) without its axis handling, which cost more than the
