@@ -700,19 +700,18 @@ def _mean_length(d: np.ndarray) -> np.ndarray:
 
 
 def tracking_errors(envs: Sequence[ExecutorEnv], q: np.ndarray, actual: BodyKin, target: Targets,
-                    qpos_before: Sequence[np.ndarray | None]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+                    qpos_before: Sequence[np.ndarray] | None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Each environment's five reward terms' errors `[N, 5]` (UniCon eq. 5's kernels' arguments,
     in `rewards.TERMS` order) and position errors in metres (`joint_error_m`, `body_error_m`,
     `[N]` each), from the characters' qpos `q` `[N, nq]` (C-ordered) and `BodyKin` `[N]` and
-    the tracked frames' (`Targets`); an environment's `qpos_before` (its joint angles a control
-    step ago) makes the joint-velocity term compare the step's mean velocity
+    the tracked frames' (`Targets`); `qpos_before` (each environment's joint angles a control
+    step ago, or None) makes the joint-velocity term compare the step's mean velocity
     (`ExecutorConfig.joint_velocity = "step_mean"`)."""
     first = envs[0]
     qr, qvel_ref = target.qpos, target.qvel
     qvel = np.stack([env.views(env.data, STEP_ARRAYS)[3][: env.nv] for env in envs])  # a copy: step_mean overwrites rows
-    for i, before in enumerate(qpos_before):
-        if before is not None:
-            mujoco.mj_differentiatePos(first.ref_model, qvel[i], first.dt, before, q[i])
+    for i, before in enumerate(qpos_before or ()):
+        mujoco.mj_differentiatePos(first.ref_model, qvel[i], first.dt, before, q[i])
     lay = first.layout
     rel, rel_ref = actual.relative_positions(), target.rel
     errors = np.empty((len(q), len(rw.TERMS)))
@@ -750,13 +749,10 @@ def step_envs(envs: Sequence[ExecutorEnv], actions: np.ndarray) -> tuple[np.ndar
             nxt = [env.scheduler.frame(1) for env in envs]
             zero = pd_targets(first.layout, _stack([f.qpos for f in nxt]), _stack([f.qvel for f in nxt]), first.pd_lead_s)
         ctrl = zero + ex.pd_action_scale * np.clip(a, -3.0, 3.0)
-    obs = np.zeros((n, first.obs_dim), np.float32)
-    rewards = np.zeros(n)
-    terminated = np.zeros(n, bool)
-    truncated = np.zeros(n, bool)
+    terminated, truncated = [False] * n, [False] * n
     infos: list[dict] = [{} for _ in range(n)]
     step_mean = ex.joint_velocity == "step_mean"
-    befores_all = [env.qpos.copy() for env in envs] if step_mean else [None] * n
+    befores_all = [env.qpos.copy() for env in envs] if step_mean else None
     # Physics of every environment, then `step_physics`'s divergence check over all N at once
     # (the divergence warnings' count changed, or a non-finite qpos): one array op instead of
     # four per environment.
@@ -778,9 +774,9 @@ def step_envs(envs: Sequence[ExecutorEnv], actions: np.ndarray) -> tuple[np.ndar
         env.k += 1
         if env.balls:
             env._expire_projectiles()
-        if diverged[i]:
+        if diverged[i]:  # a zero observation and reward (`diverged_step`), filled in below
             env._end_segment(False)
-            obs[i], rewards[i], terminated[i], truncated[i], infos[i] = diverged_step(first.obs_dim, ended_by="divergence")
+            _, _, terminated[i], truncated[i], infos[i] = diverged_step(first.obs_dim, ended_by="divergence")
             continue
         moved = env.scheduler.advance(env.rng, qpos[i, : env.nq])  # a row of a copy: the character's qpos now
         if moved:
@@ -788,19 +784,26 @@ def step_envs(envs: Sequence[ExecutorEnv], actions: np.ndarray) -> tuple[np.ndar
             env._end_segment(True)
             env._segment_clip = getattr(env.scheduler, "clip_id", "")
         live.append(i)
-        befores.append(befores_all[i])
         rescheduled.append(moved)
+    every = len(live) == n  # the common case: nothing diverged, so no rows to pick or fill in
+    if every:
+        running, on, q = envs, slots, (qpos if qpos.shape[1] == first.nq else qpos[:, : first.nq].copy())
+    else:
+        running, on, q = [envs[i] for i in live], None if slots is None else slots[live], qpos[live, : first.nq]
     if not live:
-        return obs, rewards, terminated, truncated, infos
-    running = [envs[i] for i in live]
+        return np.zeros((n, first.obs_dim), np.float32), np.zeros(n), np.array(terminated), np.array(truncated), infos
+    befores = None if befores_all is None else [befores_all[i] for i in live]
     actual = character_kinematics(running)
-    targets = target_rows(running, None if slots is None else slots[live])
-    errors, positions = tracking_errors(running, qpos[live, : first.nq], actual, targets, befores)
+    targets = target_rows(running, on)
+    errors, positions = tracking_errors(running, q, actual, targets, befores)
     terms = rw.term_values(errors, ex.reward_scales)
     step_rewards = rw.weighted_sums(terms, ex.reward_weights)
     ends = rw.terminations(terms, ex.reward_weights, ex.termination, ex.alpha, ex.terminate_on)
-    obs[live] = observe(running, actual, targets)
-    rewards[live] = step_rewards
+    if every:
+        obs, rewards = observe(running, actual, targets), step_rewards
+    else:
+        obs, rewards = np.zeros((n, first.obs_dim), np.float32), np.zeros(n)
+        obs[live], rewards[live] = observe(running, actual, targets), step_rewards
     # NOTE: Python floats by `tolist` (one call per array), not float() of each numpy scalar
     term_rows, dists = terms.tolist(), {k: v.tolist() for k, v in positions.items()}
     for j, (i, env) in enumerate(zip(live, running)):
@@ -815,4 +818,4 @@ def step_envs(envs: Sequence[ExecutorEnv], actions: np.ndarray) -> tuple[np.ndar
         terminated[i], truncated[i] = term, trunc
         infos[i] = {"diverged": False, "terms": env.last_terms, "ended_by": ended_by if term else None,
                     "rescheduled": rescheduled[j], **{k: v[j] for k, v in dists.items()}, **env.scheduler.status()}
-    return obs, rewards, terminated, truncated, infos
+    return obs, rewards, np.array(terminated), np.array(truncated), infos
