@@ -12,9 +12,9 @@ training never changes the model per environment). A step is `env.step_envs`, th
   the N environments, each environment's arithmetic the same as alone, so its observations,
   rewards and ends are those of `ExecutorEnv(cfg, seeds[i])` stepped alone bit for bit
   (tests/common/tasks/executor/test_batch.py holds it);
-- physics runs per environment, `mj_step(model, data, nstep=substeps)` with the divergence
-  check (`step_physics`): `mujoco.rollout` over the N datas measured slower on one thread
-  (its state copies in and out cost more than the loop; docs/benchmarks.md);
+- physics runs per environment, `mj_step(model, data, nstep=substeps)`, then `step_physics`'s
+  divergence check over the N at once: `mujoco.rollout` over the N datas measured slower on
+  one thread (its state copies in and out cost more than the loop; docs/benchmarks.md);
 - the target frames' body kinematics come from the scheduler's table of schedule rows
   (`DatasetScheduler.kinematics_at`): computed for `KINEMATICS_ROWS` rows of the episode's
   control grid at a time by the same MuJoCo calls on the same frames as the character's, and

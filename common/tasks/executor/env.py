@@ -32,9 +32,9 @@ Robustness hooks (zero-shot tests, UniCon 8.5): `scale_mass` makes the body heav
 from __future__ import annotations
 
 import functools
+import math
 import operator
 from dataclasses import dataclass
-import math
 from typing import Sequence
 
 import mujoco
@@ -222,8 +222,10 @@ class TargetTable:
     slot i of arrays `[N, rows, ...]`: the frames' `BodyKin` fields (`pos`, `rot`, `lin`, `ang`,
     `com`), what the step derives from a frame alone (`rel`: `BodyKin.relative_positions`;
     `features`: o(X~), `agent_features`), `qpos`, `qvel`, the PD targets of a zero action (`pd`,
-    `pd_targets`; pd actuation only), and `next_row` `[N]`: the row of the frame one control step ahead as of the last
-    observation (what the next step's PD targets come from). An `ExecutorBatch`'s environments
+    `pd_targets`; pd actuation only), and `next_row` `[N]`: the row of the frame one control
+    step ahead as of the last observation (what the next step's PD targets come from); per
+    environment, rows 0..R-1 of its slot are the R rows its scheduler last filled. An
+    `ExecutorBatch`'s environments
     share one, so a step gathers every environment's targets with one index per array; a
     single environment has one of its own (N = 1). Every row holds what the frame gives alone,
     so a gather is the per-frame values bit for bit."""
@@ -393,8 +395,8 @@ class ExecutorEnv:
 
     def views(self, data: mujoco.MjData, names: tuple[str, ...]) -> tuple[np.ndarray, ...]:
         """`data`'s arrays `names` (attribute paths; numpy views of its memory, which follow
-        every step and reset), made once per MjData the environment reads. NOTE: each attribute read builds a
-        new numpy wrapper (about 0.5 us), and a step read some 100 of them."""
+        every step and reset), made once per MjData the environment reads. NOTE: each attribute
+        read builds a new numpy wrapper (about 0.5 us), and a step read some 100 of them."""
         cache = self.__dict__.setdefault("_views", {})
         hit = cache.get(names)
         if hit is None or hit[0] is not data:
@@ -421,8 +423,8 @@ class ExecutorEnv:
     def _fill_targets(self, qpos: np.ndarray, qvel: np.ndarray) -> _RowIndex:
         """The `DatasetScheduler`'s kinematics function: R schedule rows' target data (the
         frames' `reference_kinematics` and the features the step derives from each frame alone,
-        qpos, qvel and PD targets) written to rows 0..R-1 of the
-        environment's `TargetTable` slot; the scheduler's table is then the row index itself."""
+        qpos, qvel and PD targets) written to rows 0..R-1 of the environment's `TargetTable`
+        slot; the scheduler's table is then the row index itself (`_RowIndex`)."""
         t, s, r = self._own_table(), self._slot, len(qpos)
         if r > t.rows:
             raise ValueError(f"{r} schedule rows do not fit the target table's {t.rows}")
@@ -435,14 +437,16 @@ class ExecutorEnv:
         return _ROW_INDEX
 
     def _own_table(self) -> TargetTable:
-        """The environment's `TargetTable` (one of its own, made on first use, unless a batch gave it one)."""
+        """The environment's `TargetTable`: one of its own, made on first use, unless a batch
+        gave it a slot of the batch's."""
         if self._table is None:
             rows = max(DatasetScheduler.KINEMATICS_ROWS, self.ex.tau + 1)
             self._table = TargetTable(1, rows, len(self.bodies), self.nq, self.nv, self.nu, self.ex.actuation == "pd")
         return self._table
 
     def _tabled(self) -> bool:
-        """The targets come from the `TargetTable` (the scheduler is the environment's own `DatasetScheduler`)."""
+        """The targets come from the `TargetTable` (the scheduler is the environment's own
+        `DatasetScheduler`, not one swapped in by `use_scheduler`)."""
         return getattr(self.scheduler, "kinematics", None) == self._fill_targets
 
     def _target_kin(self, frame: TargetFrame) -> BodyKin:
