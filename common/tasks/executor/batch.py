@@ -12,15 +12,17 @@ training never changes the model per environment). A step is `env.step_envs`, th
   the N environments, each environment's arithmetic the same as alone, so its observations,
   rewards and ends are those of `ExecutorEnv(cfg, seeds[i])` stepped alone bit for bit
   (tests/common/tasks/executor/test_batch.py holds it);
-- physics runs per environment, `mj_step(model, data, nstep=substeps)` with the divergence
-  check (`step_physics`): `mujoco.rollout` over the N datas measured slower on one thread
-  (its state copies in and out cost more than the loop; docs/benchmarks.md);
+- physics runs per environment, `mj_step(model, data, nstep=substeps)`, then `step_physics`'s
+  divergence check over the N at once: `mujoco.rollout` over the N datas measured slower on
+  one thread (its state copies in and out cost more than the loop; docs/benchmarks.md);
 - the target frames' body kinematics come from the scheduler's table of schedule rows
   (`DatasetScheduler.kinematics_at`): computed for `KINEMATICS_ROWS` rows of the episode's
   control grid at a time by the same MuJoCo calls on the same frames as the character's, and
   indexed by the step. Not a per-clip table interpolated by time: an interpolated body pose
   is not the kinematics of the interpolated joint angles, so such a table would change the
-  targets; the rows are computed once per schedule instead, and a step only looks them up;
+  targets; the rows are computed once per schedule instead, and a step only looks them up.
+  Each row's kinematics, qpos, qvel and PD targets sit in one `TargetTable` the N share (slot
+  i: environment i), so a step gathers all N environments' targets with one index per array;
 - resets are per environment (`reset_one`: `ExecutorEnv.reset`).
 """
 
@@ -31,7 +33,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from common.tasks.base import TaskConfig
-from common.tasks.executor.env import ExecutorEnv, step_envs
+from common.tasks.executor.env import ExecutorEnv, TargetTable, step_envs
 
 
 class ExecutorBatch:
@@ -43,6 +45,14 @@ class ExecutorBatch:
         first = ExecutorEnv(cfg, seeds[0])
         self.envs = [first] + [ExecutorEnv(cfg, seed, like=first) for seed in seeds[1:]]
         self.n = len(self.envs)
+        own = first._table
+        if own is not None:  # one `TargetTable` for all: a step gathers every environment's targets at once
+            table = TargetTable(self.n, own.rows, own.pos.shape[2], own.qpos.shape[2], own.qvel.shape[2],
+                                first.nu, own.pd is not None)
+            slots = np.arange(self.n)
+            for i, env in enumerate(self.envs):
+                table.copy_slot(env._table, i, env._slot)
+                env._table, env._slot, env._slots = table, i, slots
         self.obs_dim, self.act_dim, self.space = first.obs_dim, first.act_dim, first.space
 
     def reset_one(self, i: int, seed: int | None, params: np.ndarray, clip_id: str | None = None) -> np.ndarray:

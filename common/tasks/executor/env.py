@@ -33,6 +33,8 @@ from __future__ import annotations
 
 import functools
 import math
+import operator
+from dataclasses import dataclass
 from typing import Sequence
 
 import mujoco
@@ -49,8 +51,8 @@ from common.motion.mirror import MIRROR_SUFFIX, mirrored_id, source_id
 from common.motion.reference import CharacterMotion
 from common.params import ParamSpace
 from common.tasks.executor import rewards as rw
-from common.tasks.base import TaskConfig, diverged_step, step_physics
-from common.tasks.executor.observations import BodyKin, kinematics_from_arrays, observation, read_kinematics, read_kinematics_batch
+from common.tasks.base import _DIVERGENCE_WARNINGS, TaskConfig, diverged_step
+from common.tasks.executor.observations import BodyKin, agent_features, kinematics_from_arrays, observation_of
 from common.tasks.observations import JointLayout
 from common.tasks.executor.schedulers.base import DatasetScheduler, Scheduler, TargetFrame
 
@@ -215,8 +217,60 @@ def effort_factors(model: mujoco.MjModel, mass_kg: float, scale: float = 1.0) ->
     return out
 
 
+class TargetTable:
+    """What a step reads of its environments' target frames, per schedule row: each
+    environment's `DatasetScheduler` table (`kinematics_at`) of at most `rows` rows, kept in
+    slot i of arrays `[N, rows, ...]`: the frames' `BodyKin` fields (`pos`, `rot`, `lin`, `ang`,
+    `com`), what the step derives from a frame alone (`rel`: `BodyKin.relative_positions`;
+    `features`: o(X~), `agent_features`), `qpos`, `qvel`, the PD targets of a zero action (`pd`,
+    `pd_targets`; pd actuation only), and `next_row` `[N]`: the row of the frame one control
+    step ahead as of the last observation (what the next step's PD targets come from); per
+    environment, rows 0..R-1 of its slot are the R rows its scheduler last filled. An
+    `ExecutorBatch`'s environments
+    share one, so a step gathers every environment's targets with one index per array; a
+    single environment has one of its own (N = 1). Every row holds what the frame gives alone,
+    so a gather is the per-frame values bit for bit."""
+
+    def __init__(self, n: int, rows: int, bodies: int, nq: int, nv: int, nu: int, pd: bool):
+        self.rows = rows
+        self.pos, self.lin, self.ang = (np.zeros((n, rows, bodies, 3)) for _ in range(3))
+        self.rot = np.zeros((n, rows, bodies, 3, 3))
+        self.com = np.zeros((n, rows, 3))
+        self.rel = np.zeros((n, rows, bodies - 1, 3))
+        self.features = np.zeros((n, rows, 13 + 15 * (bodies - 1)))
+        self.qpos, self.qvel = np.zeros((n, rows, nq)), np.zeros((n, rows, nv))
+        self.pd = np.zeros((n, rows, nu)) if pd else None
+        self.next_row = np.zeros(n, np.intp)
+
+    def targets(self, slots: np.ndarray, rows: np.ndarray) -> BodyKin:
+        """`BodyKin` `[M, R]` of rows `[M, R]` of slots `[M]`."""
+        at = (slots[:, None], rows)
+        return BodyKin(self.pos[at], self.rot[at], self.lin[at], self.ang[at], self.com[at])
+
+    def copy_slot(self, other: "TargetTable", mine: int, theirs: int) -> None:
+        """Copy slot `theirs` of `other` into slot `mine` of this table."""
+        for name in ("pos", "rot", "lin", "ang", "com", "rel", "features", "qpos", "qvel", "pd", "next_row"):
+            if getattr(self, name) is not None:
+                getattr(self, name)[mine] = getattr(other, name)[theirs]
+
+
+class _RowIndex:
+    """The table `_fill_targets` hands the `DatasetScheduler`: indexing it gives back the index,
+    so `kinematics_at` returns the rows' places in the environment's `TargetTable` slot."""
+
+    def __getitem__(self, index: np.ndarray) -> np.ndarray:
+        return index
+
+
+_ROW_INDEX = _RowIndex()
+
+
 class ExecutorEnv:
     """Gymnasium-style environment (`common.tasks.base.Env`); see the module docstring."""
+
+    _table: TargetTable | None = None
+    _slot = 0
+    _slots = np.zeros(1, np.intp)
 
     @staticmethod
     def param_space(cfg: TaskConfig) -> ParamSpace:
@@ -279,7 +333,7 @@ class ExecutorEnv:
         self.scheduler = DatasetScheduler(self.ref_model, self._motion, self.clip_manager, None, self.dt,
                                           speed=self.ex.speed, at_end=self.ex.at_clip_end, lookback=lookback,
                                           lookahead=self.ex.tau + 1, velocity_window=self.ex.target_velocity_window,
-                                          kinematics=self.reference_kinematics)
+                                          kinematics=self._fill_targets)
         self.balls = [self.model.body(f"projectile{i}").id for i in range(PROJECTILES)] if self.ex.projectile else []
         self._thrown_at = [-1] * len(self.balls)
         self._next_ball = 0
@@ -348,6 +402,16 @@ class ExecutorEnv:
 
     # ---- state ----
 
+    def views(self, data: mujoco.MjData, names: tuple[str, ...]) -> tuple[np.ndarray, ...]:
+        """`data`'s arrays `names` (attribute paths; numpy views of its memory, which follow
+        every step and reset), made once per MjData the environment reads. NOTE: each attribute
+        read builds a new numpy wrapper (about 0.5 us), and a step read some 100 of them."""
+        cache = self.__dict__.setdefault("_views", {})
+        hit = cache.get(names)
+        if hit is None or hit[0] is not data:
+            hit = cache[names] = (data, tuple(operator.attrgetter(name)(data) for name in names))
+        return hit[1]
+
     def reference_kinematics(self, qpos: np.ndarray, qvel: np.ndarray) -> BodyKin:
         """`BodyKin` `[R]` of R frames of the character (`qpos` `[R, nq]`, `qvel` `[R, nv]`): the
         same MuJoCo calls on each frame as on the character (`mj_kinematics`, `mj_comPos`,
@@ -356,13 +420,43 @@ class ExecutorEnv:
         d, m, n = self.ref_data, self.ref_model, len(qpos)
         xpos, xmat = np.empty((n, m.nbody, 3)), np.empty((n, m.nbody, 9))
         cvel, com = np.empty((n, m.nbody, 6)), np.empty((n, m.nbody, 3))
+        d_qpos, d_qvel, d_xpos, d_xmat, d_cvel, d_com = self.views(d, ("qpos", "qvel", "xpos", "xmat", "cvel", "subtree_com"))
         for r in range(n):
-            d.qpos[:], d.qvel[:] = qpos[r], qvel[r]
+            d_qpos[:], d_qvel[:] = qpos[r], qvel[r]
             mujoco.mj_kinematics(m, d)
             mujoco.mj_comPos(m, d)
             mujoco.mj_comVel(m, d)
-            xpos[r], xmat[r], cvel[r], com[r] = d.xpos, d.xmat, d.cvel, d.subtree_com
+            xpos[r], xmat[r], cvel[r], com[r] = d_xpos, d_xmat, d_cvel, d_com
         return kinematics_from_arrays(xpos, xmat, cvel, com, m.body_rootid, self.body_slice)
+
+    def _fill_targets(self, qpos: np.ndarray, qvel: np.ndarray) -> _RowIndex:
+        """The `DatasetScheduler`'s kinematics function: R schedule rows' target data (the
+        frames' `reference_kinematics` and the features the step derives from each frame alone,
+        qpos, qvel and PD targets) written to rows 0..R-1 of the environment's `TargetTable`
+        slot; the scheduler's table is then the row index itself (`_RowIndex`)."""
+        t, s, r = self._own_table(), self._slot, len(qpos)
+        if r > t.rows:
+            raise ValueError(f"{r} schedule rows do not fit the target table's {t.rows}")
+        kin = self.reference_kinematics(qpos, qvel)
+        t.pos[s, :r], t.rot[s, :r], t.lin[s, :r], t.ang[s, :r], t.com[s, :r] = kin.pos, kin.rot, kin.lin, kin.ang, kin.com
+        t.rel[s, :r], t.features[s, :r] = kin.relative_positions(), agent_features(kin)
+        t.qpos[s, :r], t.qvel[s, :r] = qpos, qvel
+        if t.pd is not None:
+            t.pd[s, :r] = pd_targets(self.layout, qpos, qvel, self.pd_lead_s)
+        return _ROW_INDEX
+
+    def _own_table(self) -> TargetTable:
+        """The environment's `TargetTable`: one of its own, made on first use, unless a batch
+        gave it a slot of the batch's."""
+        if self._table is None:
+            rows = max(DatasetScheduler.KINEMATICS_ROWS, self.ex.tau + 1)
+            self._table = TargetTable(1, rows, len(self.bodies), self.nq, self.nv, self.nu, self.ex.actuation == "pd")
+        return self._table
+
+    def _tabled(self) -> bool:
+        """The targets come from the `TargetTable` (the scheduler is the environment's own
+        `DatasetScheduler`, not one swapped in by `use_scheduler`)."""
+        return getattr(self.scheduler, "kinematics", None) == self._fill_targets
 
     def _target_kin(self, frame: TargetFrame) -> BodyKin:
         """`reference_kinematics` of one frame, for schedulers without a kinematics table."""
@@ -381,8 +475,10 @@ class ExecutorEnv:
         """`BodyKin` `[tau + 1]` of the target frames 0..tau control steps from now: the
         `DatasetScheduler`'s table rows, or each frame's kinematics (other schedulers)."""
         offsets = range(self.ex.tau + 1)
-        if getattr(self.scheduler, "kinematics", None) is not None:
-            return self.scheduler.kinematics_at(offsets)
+        if self._tabled():
+            rows = self.scheduler.kinematics_at(offsets)
+            self._table.next_row[self._slot] = rows[1]
+            return self._table.targets(self._slots[self._slot : self._slot + 1], rows[None])[0]
         return BodyKin.stack([self._target_kin(self.scheduler.frame(i)) for i in offsets])
 
     def tracking_kinematics(self) -> tuple[BodyKin, BodyKin]:
@@ -543,45 +639,101 @@ def character_kinematics(envs: Sequence[ExecutorEnv]) -> BodyKin:
         mujoco.mj_kinematics(env.model, env.data)
         mujoco.mj_comPos(env.model, env.data)
         mujoco.mj_comVel(env.model, env.data)
-    return read_kinematics_batch(envs[0].model, [env.data for env in envs], envs[0].body_slice)
+    views = [env.views(env.data, KINEMATICS_ARRAYS) for env in envs]
+    return kinematics_from_arrays(*(_stack(arrays) for arrays in zip(*views)), envs[0].model.body_rootid, envs[0].body_slice)
 
 
-def observe(envs: Sequence[ExecutorEnv], actual: BodyKin, targets: BodyKin | None = None) -> np.ndarray:
+KINEMATICS_ARRAYS = ("xpos", "xmat", "cvel", "subtree_com")
+"""The MjData arrays `kinematics_from_arrays` reads."""
+STEP_ARRAYS = ("warning.number", "ctrl", "qpos", "qvel")
+"""The MjData arrays a step reads and writes besides those."""
+
+
+@dataclass(frozen=True)
+class Targets:
+    """What a step reads of M environments' target frames: the tracked frame's (now: `com`
+    `[M, 3]`, body positions `pos` `[M, B, 3]`, `rel` `[M, B - 1, 3]`
+    (`BodyKin.relative_positions`), `qpos` `[M, nq]`, `qvel` `[M, nv]`) and the observed frames'
+    (1..tau control steps ahead: o(X~) `features` `[M, tau, F]`, root positions `root_pos`
+    `[M, tau, 3]` and rotations `root_rot` `[M, tau, 3, 3]`)."""
+
+    com: np.ndarray
+    pos: np.ndarray
+    rel: np.ndarray
+    qpos: np.ndarray
+    qvel: np.ndarray
+    features: np.ndarray
+    root_pos: np.ndarray
+    root_rot: np.ndarray
+
+
+def target_rows(envs: Sequence[ExecutorEnv], slots: np.ndarray | None) -> Targets:
+    """The environments' `Targets` now. With `slots` (the environments share a `TargetTable`,
+    these are their slots, and each is `_tabled`): each scheduler looks its rows up
+    (`kinematics_at`), the rows one step ahead become the next PD targets' (`next_row`), and
+    every array is one gather from the table. Else computed from each scheduler's frames."""
+    tau = envs[0].ex.tau
+    if slots is not None:
+        table = envs[0]._table
+        rows = np.array([env.scheduler.kinematics_at(range(tau + 1)) for env in envs])
+        table.next_row[slots] = rows[:, 1]
+        now = (slots, rows[:, 0])
+        ahead = (slots[:, None], rows[:, 1:])
+        return Targets(table.com[now], table.pos[now], table.rel[now], table.qpos[now], table.qvel[now],
+                       table.features[ahead], table.pos[ahead + (0,)], table.rot[ahead + (0,)])
+    kin = BodyKin.stack([env.target_kinematics() for env in envs])
+    frames = [env.scheduler.frame(0) for env in envs]
+    now, ahead = kin[:, 0], kin[:, 1:]
+    return Targets(now.com, now.pos, now.relative_positions(), _stack([f.qpos for f in frames]),
+                   _stack([f.qvel for f in frames]), agent_features(ahead), ahead.pos[..., 0, :], ahead.rot[..., 0, :, :])
+
+
+def table_slots(envs: Sequence[ExecutorEnv]) -> np.ndarray | None:
+    """The environments' slots in the `TargetTable` they share, or None (`target_rows`)."""
+    table = envs[0]._own_table()
+    if all(env._table is table and env._tabled() for env in envs):
+        return np.fromiter((env._slot for env in envs), np.intp, len(envs))
+    return None
+
+
+def observe(envs: Sequence[ExecutorEnv], actual: BodyKin, targets: Targets | None = None) -> np.ndarray:
     """Observations `[N, obs_dim]` of the environments (`observation`) from their characters'
-    `BodyKin` `[N]` and their target frames' `[N, tau + 1]` (looked up when None)."""
+    `BodyKin` `[N]` and their `Targets` (looked up when None)."""
     if targets is None:
-        targets = BodyKin.stack([env.target_kinematics() for env in envs])
-    return observation(actual, targets[:, 1:], _stack([env.params for env in envs]))
+        targets = target_rows(envs, table_slots(envs))
+    params = _stack([env.params for env in envs])
+    return observation_of(actual, targets.features, targets.root_pos, targets.root_rot, params)
 
 
-def tracking_errors(envs: Sequence[ExecutorEnv], actual: BodyKin, target: BodyKin, frames: Sequence[TargetFrame],
-                    qpos_before: Sequence[np.ndarray | None]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+def _mean_length(d: np.ndarray) -> np.ndarray:
+    """`np.mean(np.linalg.norm(d, axis=-1), axis=-1)` of real `[..., B, 3]`, by the ufuncs those
+    two call (the same sum of squares, square root, sum and division, so bit for bit theirs)
+    without their Python wrappers, which cost more than the arithmetic here."""
+    return np.add.reduce(np.sqrt(np.add.reduce(d * d, axis=-1)), axis=-1) / d.shape[-2]
+
+
+def tracking_errors(envs: Sequence[ExecutorEnv], q: np.ndarray, actual: BodyKin, target: Targets,
+                    qpos_before: Sequence[np.ndarray] | None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Each environment's five reward terms' errors `[N, 5]` (UniCon eq. 5's kernels' arguments,
     in `rewards.TERMS` order) and position errors in metres (`joint_error_m`, `body_error_m`,
-    `[N]` each), from the characters' and tracked frames' `BodyKin` `[N]` and the tracked
-    `frames`; an environment's `qpos_before` (its joint angles a control step ago) makes the
-    joint-velocity term compare the step's mean velocity (`ExecutorConfig.joint_velocity = "step_mean"`)."""
+    `[N]` each), from the characters' qpos `q` `[N, nq]` (C-ordered) and `BodyKin` `[N]` and
+    the tracked frames' (`Targets`); `qpos_before` (each environment's joint angles a control
+    step ago, or None) makes the joint-velocity term compare the step's mean velocity
+    (`ExecutorConfig.joint_velocity = "step_mean"`)."""
     first = envs[0]
-    q = _stack([env.qpos for env in envs])
-    qr = _stack([f.qpos for f in frames])
-    qvel = np.stack([env.data.qvel[: env.nv] for env in envs])  # a copy: step_mean overwrites rows
-    for i, before in enumerate(qpos_before):
-        if before is not None:
-            mujoco.mj_differentiatePos(first.ref_model, qvel[i], first.dt, before, q[i])
-    qvel_ref = _stack([f.qvel for f in frames])
+    qr, qvel_ref = target.qpos, target.qvel
+    qvel = np.stack([env.views(env.data, STEP_ARRAYS)[3][: env.nv] for env in envs])  # a copy: step_mean overwrites rows
+    for i, before in enumerate(qpos_before or ()):
+        mujoco.mj_differentiatePos(first.ref_model, qvel[i], first.dt, before, q[i])
     lay = first.layout
-    rel, rel_ref = actual.relative_positions(), target.relative_positions()
-    errors = np.stack([
-        rw.com_errors(actual.com, target.com),
-        rw.root_rotation_errors(q[:, 3:7], qr[:, 3:7]),
-        rw.joint_position_errors(rel, rel_ref),
-        rw.joint_rotation_errors(q[:, lay.ball_qpos], qr[:, lay.ball_qpos], q[:, lay.hinge_qpos], qr[:, lay.hinge_qpos]),
-        rw.joint_velocity_errors(qvel[:, 6:], qvel_ref[:, 6:]),
-    ], axis=-1)
-    positions = {
-        "joint_error_m": np.mean(np.linalg.norm(rel - rel_ref, axis=-1), axis=-1),
-        "body_error_m": np.mean(np.linalg.norm(actual.pos - target.pos, axis=-1), axis=-1),
-    }
+    rel, rel_ref = actual.relative_positions(), target.rel
+    errors = np.empty((len(q), len(rw.TERMS)))
+    errors[:, 0] = rw.com_errors(actual.com, target.com)
+    errors[:, 1] = rw.root_rotation_errors(q[:, 3:7], qr[:, 3:7])
+    errors[:, 2] = rw.joint_position_errors(rel, rel_ref)
+    errors[:, 3] = rw.joint_rotation_errors(q[:, lay.ball_qpos], qr[:, lay.ball_qpos], q[:, lay.hinge_qpos], qr[:, lay.hinge_qpos])
+    errors[:, 4] = rw.joint_velocity_errors(qvel[:, 6:], qvel_ref[:, 6:])
+    positions = {"joint_error_m": _mean_length(rel - rel_ref), "body_error_m": _mean_length(actual.pos - target.pos)}
     return errors, positions
 
 
@@ -591,55 +743,82 @@ def step_envs(envs: Sequence[ExecutorEnv], actions: np.ndarray) -> tuple[np.ndar
     one info dict each (see `ExecutorEnv`). Actuation, kinematics features, reward terms,
     termination and observations are array operations over the N environments, each state's
     arithmetic the same as alone (so environment i's results are those of stepping it alone,
-    bit for bit); physics (`step_physics`, with its divergence check), the scheduler's advance
-    (with the environment's own generator) and the episode bookkeeping run per environment."""
+    bit for bit); physics (`mj_step`; `step_physics`'s divergence check runs over all N), the
+    scheduler's advance (with the environment's own generator) and the episode bookkeeping run
+    per environment."""
     first = envs[0]
     ex, n = first.ex, len(envs)
+    table = first._table
+    slots = table_slots(envs)
     a = np.asarray(actions, dtype=np.float64)
     if not np.isfinite(a).all():  # checked first: nan_to_num on every step cost 30 us
         a = np.nan_to_num(a)
     if ex.actuation == "torque":
         ctrl = np.clip(a, -1.0, 1.0)
     else:
-        nxt = [env.scheduler.frame(1) for env in envs]
-        ctrl = pd_targets(first.layout, _stack([f.qpos for f in nxt]), _stack([f.qvel for f in nxt]), first.pd_lead_s)
-        ctrl = ctrl + ex.pd_action_scale * np.clip(a, -3.0, 3.0)
-    obs = np.zeros((n, first.obs_dim), np.float32)
-    rewards = np.zeros(n)
-    terminated = np.zeros(n, bool)
-    truncated = np.zeros(n, bool)
+        if slots is not None:  # the next frames' PD targets, computed once per schedule row
+            zero = table.pd[slots, table.next_row[slots]]
+        else:
+            nxt = [env.scheduler.frame(1) for env in envs]
+            zero = pd_targets(first.layout, _stack([f.qpos for f in nxt]), _stack([f.qvel for f in nxt]), first.pd_lead_s)
+        ctrl = zero + ex.pd_action_scale * np.clip(a, -3.0, 3.0)
+    terminated, truncated = [False] * n, [False] * n
     infos: list[dict] = [{} for _ in range(n)]
+    step_mean = ex.joint_velocity == "step_mean"
+    befores_all = [env.qpos.copy() for env in envs] if step_mean else None
+    # Physics of every environment, then `step_physics`'s divergence check over all N at once
+    # (the divergence warnings' count changed, or a non-finite qpos): one array op instead of
+    # four per environment.
+    views = [env.views(env.data, STEP_ARRAYS) for env in envs]
+    warned = np.array([v[0] for v in views])
+    substeps = first.cfg.substeps
+    for env, v, c in zip(envs, views, ctrl):
+        v[1][:] = c
+        mujoco.mj_step(env.model, env.data, nstep=substeps)
+    warned -= np.array([v[0] for v in views])
+    qpos = np.array([v[2] for v in views])
+    warned = warned[:, _DIVERGENCE_WARNINGS]
+    if warned.any() or not np.isfinite(qpos).all():  # else no environment diverged: two calls in the common case
+        diverged = ((warned.sum(axis=1) != 0) | ~np.isfinite(qpos).all(axis=1)).tolist()
+    else:
+        diverged = [False] * n
     live, befores, rescheduled = [], [], []
     for i, env in enumerate(envs):
-        env.data.ctrl[:] = ctrl[i]
-        before = env.qpos.copy() if ex.joint_velocity == "step_mean" else None
-        diverged = step_physics(env.model, env.data, env.cfg.substeps)
         env.k += 1
         if env.balls:
             env._expire_projectiles()
-        if diverged:
+        if diverged[i]:  # a zero observation and reward (`diverged_step`), filled in below
             env._end_segment(False)
-            obs[i], rewards[i], terminated[i], truncated[i], infos[i] = diverged_step(first.obs_dim, ended_by="divergence")
+            _, _, terminated[i], truncated[i], infos[i] = diverged_step(first.obs_dim, ended_by="divergence")
             continue
-        moved = env.scheduler.advance(env.rng, env.qpos.copy())
+        moved = env.scheduler.advance(env.rng, qpos[i, : env.nq])  # a row of a copy: the character's qpos now
         if moved:
             env.grace = env.k + ex.catch_up_steps
             env._end_segment(True)
             env._segment_clip = getattr(env.scheduler, "clip_id", "")
         live.append(i)
-        befores.append(before)
         rescheduled.append(moved)
+    every = len(live) == n  # the common case: nothing diverged, so no rows to pick or fill in
+    if every:
+        running, on, q = envs, slots, (qpos if qpos.shape[1] == first.nq else qpos[:, : first.nq].copy())
+    else:
+        running, on, q = [envs[i] for i in live], None if slots is None else slots[live], qpos[live, : first.nq]
     if not live:
-        return obs, rewards, terminated, truncated, infos
-    running = [envs[i] for i in live]
+        return np.zeros((n, first.obs_dim), np.float32), np.zeros(n), np.array(terminated), np.array(truncated), infos
+    befores = None if befores_all is None else [befores_all[i] for i in live]
     actual = character_kinematics(running)
-    targets = BodyKin.stack([env.target_kinematics() for env in running])
-    frames = [env.scheduler.frame(0) for env in running]
-    errors, positions = tracking_errors(running, actual, targets[:, 0], frames, befores)
+    targets = target_rows(running, on)
+    errors, positions = tracking_errors(running, q, actual, targets, befores)
     terms = rw.term_values(errors, ex.reward_scales)
     step_rewards = rw.weighted_sums(terms, ex.reward_weights)
     ends = rw.terminations(terms, ex.reward_weights, ex.termination, ex.alpha, ex.terminate_on)
-    obs[live] = observe(running, actual, targets)
+    if every:
+        obs, rewards = observe(running, actual, targets), step_rewards
+    else:
+        obs, rewards = np.zeros((n, first.obs_dim), np.float32), np.zeros(n)
+        obs[live], rewards[live] = observe(running, actual, targets), step_rewards
+    # NOTE: Python floats by `tolist` (one call per array), not float() of each numpy scalar
+    term_rows, dists = terms.tolist(), {k: v.tolist() for k, v in positions.items()}
     for j, (i, env) in enumerate(zip(live, running)):
         ended_by = ends[j]
         if ended_by is None and env.k < env.grace and ex.catch_up_ends == "on_track":
@@ -648,9 +827,8 @@ def step_envs(envs: Sequence[ExecutorEnv], actions: np.ndarray) -> tuple[np.ndar
         trunc = not term and (env.k >= env.cfg.episode_steps or env.scheduler.done)
         if term or (trunc and env.scheduler.done):  # a time limit says nothing of the clip
             env._end_segment(not term)
-        env.last_terms = {name: float(v) for name, v in zip(rw.TERMS, terms[j])}
-        rewards[i], terminated[i], truncated[i] = step_rewards[j], term, trunc
+        env.last_terms = dict(zip(rw.TERMS, term_rows[j]))
+        terminated[i], truncated[i] = term, trunc
         infos[i] = {"diverged": False, "terms": env.last_terms, "ended_by": ended_by if term else None,
-                    "rescheduled": rescheduled[j], **{k: float(v[j]) for k, v in positions.items()},
-                    **env.scheduler.status()}
-    return obs, rewards, terminated, truncated, infos
+                    "rescheduled": rescheduled[j], **{k: v[j] for k, v in dists.items()}, **env.scheduler.status()}
+    return obs, rewards, np.array(terminated), np.array(truncated), infos

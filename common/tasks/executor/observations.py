@@ -96,14 +96,6 @@ def read_kinematics(model: mujoco.MjModel, data: mujoco.MjData, bodies: slice) -
     return kinematics_from_arrays(data.xpos, data.xmat, data.cvel, data.subtree_com, model.body_rootid, bodies)
 
 
-def read_kinematics_batch(model: mujoco.MjModel, datas: Sequence[mujoco.MjData], bodies: slice) -> BodyKin:
-    """`BodyKin` `[N, B]` of `bodies` in N datas of `model` (`read_kinematics` of each, stacked)."""
-    def stack(name: str) -> np.ndarray:  # a view for one data: the arrays are copied out below
-        return getattr(datas[0], name)[None] if len(datas) == 1 else np.stack([getattr(d, name) for d in datas])
-
-    return kinematics_from_arrays(stack("xpos"), stack("xmat"), stack("cvel"), stack("subtree_com"), model.body_rootid, bodies)
-
-
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Row-wise a x b for `[..., 3]` arrays: `np.cross`'s arithmetic (the same products and
     differences, so bit for bit its result) without its axis handling, which cost more than the
@@ -142,9 +134,14 @@ def agent_features(kin: BodyKin) -> np.ndarray:
 def target_root_pose(actual: BodyKin, target: BodyKin) -> np.ndarray:
     """y(X~; X) `[..., 9]`: the target root's position (3) and rotation (6) in the actual root
     frame (leading axes broadcast: one actual state against several targets)."""
-    root_rot = actual.rot[..., 0, :, :]
-    offset = (target.pos[..., 0, :] - actual.pos[..., 0, :])[..., None, :] @ root_rot
-    return np.concatenate([offset[..., 0, :], _six(np.swapaxes(root_rot, -1, -2) @ target.rot[..., 0, :, :])], axis=-1)
+    return root_pose_in(actual.pos[..., 0, :], actual.rot[..., 0, :, :], target.pos[..., 0, :], target.rot[..., 0, :, :])
+
+
+def root_pose_in(root_pos: np.ndarray, root_rot: np.ndarray, pos: np.ndarray, rot: np.ndarray) -> np.ndarray:
+    """`target_root_pose` from the roots alone: the pose `pos` `[..., 3]`, `rot` `[..., 3, 3]`
+    in the frame of the actual root `root_pos` `[..., 3]`, `root_rot` `[..., 3, 3]` -> `[..., 9]`."""
+    offset = (pos - root_pos)[..., None, :] @ root_rot
+    return np.concatenate([offset[..., 0, :], _six(np.swapaxes(root_rot, -1, -2) @ rot)], axis=-1)
 
 
 def observation(actual: BodyKin, targets: BodyKin | list[BodyKin], params: np.ndarray) -> np.ndarray:
@@ -156,10 +153,22 @@ def observation(actual: BodyKin, targets: BodyKin | list[BodyKin], params: np.nd
     lead = actual.com.shape[:-1]
     if isinstance(targets, list):
         targets = BodyKin.stack(targets, axis=len(lead))
-    tau = targets.com.shape[-2]
+    return observation_of(actual, agent_features(targets), targets.pos[..., 0, :], targets.rot[..., 0, :, :], params)
+
+
+def observation_of(actual: BodyKin, features: np.ndarray, root_pos: np.ndarray, root_rot: np.ndarray,
+                   params: np.ndarray) -> np.ndarray:
+    """`observation` from the targets' o(X~) `features` `[..., tau, F]` (`agent_features`, which
+    depends on the frame alone: the executor computes it once per schedule row) and their roots'
+    positions `[..., tau, 3]` and rotations `[..., tau, 3, 3]`."""
+    lead = actual.com.shape[:-1]
+    tau = features.shape[-2]
     at = (slice(None),) * len(lead) + (None,)
-    wide = BodyKin(actual.pos[at], actual.rot[at], actual.lin[at], actual.ang[at], actual.com[at])
-    per_target = np.concatenate([agent_features(targets), target_root_pose(wide, targets)], axis=-1)
-    parts = [np.broadcast_to(np.asarray(params, dtype=np.float64), (*lead, np.shape(params)[-1])),
+    pose = root_pose_in(actual.pos[at + (0,)], actual.rot[at + (0,)], root_pos, root_rot)
+    per_target = np.concatenate([features, pose], axis=-1)
+    params = np.asarray(params, dtype=np.float64)
+    if params.shape[:-1] != lead:  # NOTE: broadcast_to only when needed: it cost 10 us, a tenth of a single step's features
+        params = np.broadcast_to(params, (*lead, params.shape[-1]))
+    parts = [params,
              agent_features(actual), per_target.reshape(*lead, tau * per_target.shape[-1])]
     return np.concatenate(parts, axis=-1).astype(np.float32)

@@ -21,6 +21,8 @@ sum does (rule "sum").
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from common.motion.quat import quat_angle
@@ -36,7 +38,8 @@ def _square_each(x: np.ndarray) -> np.ndarray:
     """x ** 2 of each element as a numpy scalar squares it (libm's pow), which differs from the
     array square (x * x) in the last bit for about one value in a thousand."""
     x = np.asarray(x, dtype=np.float64)
-    return np.array([v ** 2 for v in x.reshape(-1)]).reshape(x.shape)
+    # NOTE: Python floats' ** is the same libm pow as numpy scalars', without a numpy scalar per element
+    return np.array([v ** 2 for v in x.reshape(-1).tolist()]).reshape(x.shape)
 
 
 def _contiguous(x) -> np.ndarray:
@@ -63,14 +66,14 @@ def joint_position_errors(rel_pos: np.ndarray, rel_pos_ref: np.ndarray) -> np.nd
     own character's root and expressed in that root's heading frame (see module docstring)."""
     d = _contiguous(rel_pos) - _contiguous(rel_pos_ref)
     lead = d.shape[:-2]
-    return np.sum((d * d).reshape(*lead, -1), axis=-1) * END_EFFECTORS_IN_DEEPMIMIC / max(1, d.shape[-2])
+    return np.add.reduce((d * d).reshape(*lead, -1), axis=-1) * END_EFFECTORS_IN_DEEPMIMIC / max(1, d.shape[-2])
 
 
 def joint_rotation_errors(balls: np.ndarray, balls_ref: np.ndarray, hinges: np.ndarray, hinges_ref: np.ndarray) -> np.ndarray:
     """sum_j angle^2 (rad^2) over ball joints (quaternions `[..., Nb, 4]`) and hinges (angles `[..., Nh]`)."""
     h = _contiguous(hinges) - _contiguous(hinges_ref)
     a = quat_angle(_contiguous(balls), _contiguous(balls_ref)) if np.shape(balls)[-2] else np.zeros((*h.shape[:-1], 0))
-    return np.sum(a * a, axis=-1) + np.sum(h * h, axis=-1)
+    return np.add.reduce(a * a, axis=-1) + np.add.reduce(h * h, axis=-1)  # np.sum's ufunc, without its wrapper
 
 
 def joint_velocity_errors(qvel_joints: np.ndarray, qvel_joints_ref: np.ndarray) -> np.ndarray:
@@ -128,13 +131,18 @@ def weighted_sum(terms: dict[str, float], weights: tuple[float, ...]) -> float:
     return float(weighted_sums(np.array([terms[name] for name in TERMS], dtype=np.float64), weights))
 
 
+@functools.lru_cache(maxsize=None)
+def _indices(watch: tuple[str, ...]) -> list[int]:
+    """The places of the terms `watch` in `TERMS`."""
+    return [TERMS.index(name) for name in watch]
+
+
 def terminations(terms: np.ndarray, weights: tuple[float, ...], rule: str, alpha: float,
                  watch: tuple[str, ...] = TERMS) -> list[str | None]:
     """`termination` of each state's terms `[N, 5]`."""
     if rule == "per_term":
-        watched = [TERMS.index(name) for name in watch]
-        below = terms[:, watched] < alpha
-        return [watch[int(np.argmax(row))] if row.any() else None for row in below]
+        below = terms[:, _indices(tuple(watch))] < alpha
+        return [watch[f] if hit else None for f, hit in zip(np.argmax(below, axis=1).tolist(), below.any(axis=1).tolist())]
     if rule == "sum":
         return ["sum" if s < alpha else None for s in weighted_sums(terms, weights)]
     if rule == "none":

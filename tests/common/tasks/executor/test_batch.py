@@ -67,3 +67,27 @@ def test_registry_builds_the_executor_batch() -> None:
     batch = make_batch_env(task("executor"), [0, 1])
     assert isinstance(batch, ExecutorBatch) and batch.n == 2
     assert batch.envs[1].model is batch.envs[0].model and batch.envs[1].data is not batch.envs[0].data
+
+
+@pytest.mark.parametrize("preset", ["executor", "executor-pd"])
+def test_a_divergence_in_the_batch_ends_that_environment_alone(preset: str) -> None:
+    """One environment's simulation blows up mid-batch: it ends as alone (`diverged_step`), and
+    the others' steps, computed without it, are still their own bit for bit."""
+    cfg = task(preset)
+    batch = ExecutorBatch(cfg, SEEDS[:3])
+    alone = [ExecutorEnv(cfg, s) for s in SEEDS[:3]]
+    rng = np.random.default_rng(0)
+    for t in range(20):
+        if t == 5:
+            for env in (batch.envs[1], alone[1]):
+                env.data.qvel[:] = 1e11  # above mjMAXVAL: MuJoCo warns and resets the state
+        actions = rng.normal(0.0, 0.3, (3, batch.act_dim))
+        obs, rewards, terminated, truncated, infos = batch.step(actions)
+        assert infos[1]["diverged"] == (t == 5)
+        for i, env in enumerate(alone):
+            o, r, term, trunc, info = env.step(actions[i])
+            assert np.array_equal(obs[i], o) and rewards[i] == r and (terminated[i], truncated[i]) == (term, trunc)
+            assert infos[i] == info, (t, i)
+            if term or trunc:
+                batch.reset_one(i, None, batch.space.default_array)
+                env.reset(None, batch.space.default_array)
