@@ -101,13 +101,6 @@ def test_the_reader_sees_imports_inside_functions() -> None:
     assert "learner.train" in GRAPH["learner.main"], sorted(GRAPH["learner.main"])
 
 
-LAZY_EXEMPT = {
-    "common/tasks/executor/batch.py", "common/tasks/executor/env.py", "common/tasks/executor/observations.py",
-    "common/tasks/executor/rewards.py", "learner/bench/env_steps.py", "learner/bench/throughput.py",
-}
-"""TEMPORARY: files being rewritten for batched environments on another branch; they get their
-`# lazy:` comments when that work is merged, and this set goes."""
-LAZY_EXEMPT_DIRS: tuple[str, ...] = ()
 
 
 def _function_imports(path: Path) -> list[int]:
@@ -132,7 +125,7 @@ def test_imports_inside_functions_say_why() -> None:
     unexplained = []
     for name, path in MODULES.items():
         rel = path.relative_to(ROOT).as_posix()
-        if _layer(name) in OUTSIDE or rel in LAZY_EXEMPT or rel.startswith(LAZY_EXEMPT_DIRS):
+        if _layer(name) in OUTSIDE:
             continue
         lines = path.read_text().splitlines()
         for lineno in _function_imports(path):

@@ -48,14 +48,14 @@ def time_presets(presets: list[str], steps: int, seed: int, episode_steps: int =
     steps. Also, in the same process: `physics_ms`, a pure physics loop of the same model
     (`mj_step` x substeps on one MjData, restarted like the episodes); and with `envs` > 0, the
     same for a batch of that many environments (`time_batch`)."""
-    import hashlib
-    import time
+    import hashlib  # lazy: this function's source runs in another tree's subprocess (--against), so it imports what it uses
+    import time  # lazy: this function's source runs in another tree's subprocess (--against), so it imports what it uses
 
-    import mujoco
-    import numpy as np
+    import mujoco  # lazy: this function's source runs in another tree's subprocess (--against), so it imports what it uses
+    import numpy as np  # lazy: this function's source runs in another tree's subprocess (--against), so it imports what it uses
 
-    from common.tasks.registry import make_env
-    from learner.presets import PRESETS
+    from common.tasks.registry import make_env  # lazy: this function's source runs in another tree's subprocess (--against), so it imports what it uses
+    from learner.presets import PRESETS  # lazy: this function's source runs in another tree's subprocess (--against), so it imports what it uses
 
     out: dict[str, dict[str, object]] = {}
     for name in presets:
@@ -108,13 +108,13 @@ def time_batch(preset: str, steps: int, seed: int, episode_steps: int, envs: int
     another. Returns ms per environment step (`batch_step_ms`) and a SHA-256 of all
     environments' trajectories (`batch_digest`), the same whichever way they were stepped when
     each environment behaves as alone."""
-    import hashlib
-    import time
+    import hashlib  # lazy: this function's source runs in another tree's subprocess (--against), so it imports what it uses
+    import time  # lazy: this function's source runs in another tree's subprocess (--against), so it imports what it uses
 
-    import numpy as np
+    import numpy as np  # lazy: this function's source runs in another tree's subprocess (--against), so it imports what it uses
 
-    from common.tasks import registry
-    from learner.presets import PRESETS
+    from common.tasks import registry  # lazy: this function's source runs in another tree's subprocess (--against), so it imports what it uses
+    from learner.presets import PRESETS  # lazy: this function's source runs in another tree's subprocess (--against), so it imports what it uses
 
     task = PRESETS[preset][1].task
     seeds = [seed + i for i in range(envs)]
@@ -217,7 +217,7 @@ class EnvStepsBenchOptions:
 
 def main(argv: list[str]) -> int:
     args = parse_options(EnvStepsBenchOptions, argv, prog=PROG, description=__doc__)
-    from learner.presets import PRESETS
+    from learner.presets import PRESETS  # lazy: start-up time of --help (the presets load torch)
 
     presets = list(args.presets)
     unknown = [p for p in presets if p not in PRESETS]

@@ -36,7 +36,6 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
 from dataclasses import dataclass, field
 from typing import ClassVar
 
@@ -50,6 +49,7 @@ from common.tasks.registry import task_clips, task_space
 from learner.cli_options import parse_options
 from learner.config import RunConfig
 from learner.presets import PRESETS, check_presets
+from sampler.shape_sampler import ShapeSampler
 
 
 @dataclass
@@ -69,7 +69,7 @@ class Round:
 
 
 def end_to_end(cfg: RunConfig, warmup_iterations: int) -> tuple[dict[str, float], Round]:
-    from learner.train import train
+    from learner.train import train  # lazy: heavy (Ray, TensorBoard), only for the end-to-end runs
 
     rec = Round()
 
@@ -109,8 +109,6 @@ def pure_simulation(cfg: RunConfig, rec: Round, warmup_iterations: int) -> dict[
     """Steps/s of one process doing what actor 0 does, minus every socket, replaying the timed
     iterations of `rec`: per iteration, the policy and sampler state of its start and one
     actor's share of its steps (whole unrolls)."""
-    from sampler.shape_sampler import ShapeSampler
-
     torch.set_num_threads(cfg.actors.torch_threads)
     space = task_space(cfg.task)
     # The service's sampler as `learner.train` configures it; actor 0's seeds (`actor_pool`).

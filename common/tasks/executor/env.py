@@ -43,18 +43,20 @@ import numpy as np
 from common.characters import base_character, load_character
 from common.characters.mass import scale_body_mass
 from common.characters.morph import lift_out_of_floor
+from common.characters.presets.humanoid import GAINS
 from common.motion.clean import clean_motion, widen_ranges
 from common.motion.clip_manager import ClipManager
-from common.motion.library import MotionLibrary
+from common.motion.errors import ClipError
+from common.motion.library import MotionLibrary, clips_for
 from common.motion.manifest import Manifest, load_manifest, unicon_split, unicon_take_split
 from common.motion.mirror import MIRROR_SUFFIX, mirrored_id, source_id
 from common.motion.reference import CharacterMotion
 from common.params import ParamSpace
-from common.tasks.executor import rewards as rw
 from common.tasks.base import _DIVERGENCE_WARNINGS, TaskConfig, diverged_step
+from common.tasks.executor import rewards as rw
 from common.tasks.executor.observations import BodyKin, agent_features, kinematics_from_arrays, observation_of
-from common.tasks.observations import JointLayout
 from common.tasks.executor.schedulers.base import DatasetScheduler, Scheduler, TargetFrame
+from common.tasks.observations import JointLayout
 
 CHARACTER = "humanoid"
 EFFORT_70KG_NM = {
@@ -92,8 +94,6 @@ def humanoid_clips(mirror: bool = False, library: str = "core") -> list[tuple[st
     """(clip_id, label) of every manifest clip of `library` ("core" or "full", see
     `ExecutorConfig.library`) that plays on the humanoid as it is; with `mirror`, each followed
     by its left-right mirror image (`<id>~mirror`, the same label; mirror.py)."""
-    from common.motion.library import clips_for
-
     if library not in ("core", "full"):
         raise ValueError(f"clip library {library!r} is not one of core, full")
     pairs = [(c, label) for c, label in clips_for(CHARACTER, _manifest()) if library == "full" or not c.startswith(BANDAI_PREFIX)]
@@ -161,8 +161,6 @@ def torque_actuation(model: mujoco.MjModel, efforts: np.ndarray) -> None:
 def passive_damping(model: mujoco.MjModel, fraction: float) -> None:
     """Set each actuated DOF's joint damping to `fraction` x its DeepMimic PD kd, in place
     (see `ExecutorConfig.passive_damping` for why torque control needs it)."""
-    from common.characters.presets.humanoid import GAINS
-
     for a in range(model.nu):
         j = int(model.actuator_trnid[a, 0])
         width = 3 if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_BALL else 1
@@ -382,8 +380,6 @@ class ExecutorEnv:
         """Make a clip that is not in the task's set trackable by name (`reset(..., clip_id)`),
         e.g. a file the project has never seen; it is never drawn. Raises ClipError when the
         clip's joints do not fit the humanoid."""
-        from common.motion.errors import ClipError
-
         if clip.character and clip.character != CHARACTER:
             raise ClipError(f"clip is for the {clip.character!r} character, not {CHARACTER!r}; import it onto the "
                             "humanoid first (morphmimic motion import ... --character humanoid)", path=clip_id)
