@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, ClassVar
@@ -284,6 +283,3 @@ SUBCOMMANDS: dict[str, tuple[str | Any, str]] = {
 def main(argv: list[str]) -> int:
     return dispatch("morphmimic keypoints", "subcommand", SUBCOMMANDS, argv)
 
-
-if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))
