@@ -7,6 +7,7 @@ chosen, so `morphmimic --help` stays fast and a broken optional part cannot brea
 from __future__ import annotations
 
 import importlib
+import os
 import sys
 from collections.abc import Callable
 
@@ -60,7 +61,11 @@ def main(argv: list[str] | None = None) -> int:
     if argv[:1] in (["--version"], ["-V"]):
         print(f"morphmimic {version()}")
         return 0
-    return dispatch("morphmimic", "command", COMMANDS, argv)
+    try:
+        return dispatch("morphmimic", "command", COMMANDS, argv)
+    except BrokenPipeError:  # the reader of our output left (`morphmimic --help | head`): nothing to say
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
 
 
 if __name__ == "__main__":
