@@ -104,11 +104,15 @@ def make_session(args: PlayOptions) -> tuple[LiveSession, Any]:
 
 
 def status_line(session: LiveSession) -> str:
+    """One line: simulated time, the episode's return, the resets with the last one's cause,
+    the clip tracked now and its time (the executor), the last step's reward terms, and for
+    video the packets received and rejected by reason."""
     last = session.last
     terms = " ".join(f"{k[:9]} {v:.2f}" for k, v in (last.get("terms") or {}).items())
-    where = f" | {last['clip_id']} {last.get('clip_time_s', 0.0):.1f}s" if "clip_id" in last else ""
+    tracking = session.tracking()
+    where = f" | {tracking[0]} {tracking[1]:.1f}s" if tracking else ""
     video = video_status(session.scheduler)
-    return (f"[play] t {session.steps * session.env.dt:6.1f}s | return {session.episode_return:8.2f} | resets {session.resets}"
+    return (f"[play] t {session.steps * session.env.dt:6.1f}s | return {session.episode_return:8.2f} | {session.reset_text()}"
             f"{where} | {terms}" + (f" | {video}" if video else ""))
 
 
@@ -175,7 +179,7 @@ def main(argv: list[str]) -> int:
             n = render_video(session, args.out, args.seconds, args.speed, args.fps, args.width, args.height)
             video = video_status(scheduler)
             print(f"[play] wrote {args.out}: {n} frames at {args.fps:g} fps ({args.seconds:g} s simulated at x{args.speed:g}); "
-                  f"return {session.episode_return:.2f}, resets {session.resets}" + (f"; {video}" if video else ""))
+                  f"return {session.episode_return:.2f}, {session.reset_text()}" + (f"; {video}" if video else ""))
         else:
             run_realtime(session, args.seconds, args.speed, args.viewer)
             print(status_line(session))

@@ -11,7 +11,14 @@ uniform random actions in [-1, 1]. What can change while it runs:
 - perturbations: `throw_projectile` (the executor's balls; a shape controller gets a push of
   the same momentum instead), `scale_mass` (heavier or lighter, UniCon Table 2);
 - `reset`; a fallen shape controller, or an executor that lost its target (`LOST_M`), is
-  reset by itself when `auto_reset` is on.
+  reset by itself when `auto_reset` is on. `resets` counts the resets and `last_reset` names
+  the cause of the last one (`RESET_CAUSES`).
+
+What a reset does to the executor's schedule (`ExecutorEnv.reset`): the dataset scheduler
+draws anew; stitch, keyboard and video resume, the body put back on the schedule's current
+target frame (the stitch queue's clip and time, the key script's clock, the video clock go on),
+so a demo that loses its target once a second still reaches the later clips and keys.
+`use_scheduler` and a clip chosen with `reset(restart=True)` begin the schedule from its start.
 
 Every value a user hands in (shape values, mass factors, clip names, speeds) is checked here
 and refused with a `ValueError` that names it and what is allowed; the session keeps running.
@@ -51,6 +58,15 @@ BODY_PRESETS: tuple[tuple[str, dict[str, float]], ...] = (
 )
 """Won & Lee 2019 Figure 1's bodies by parameter name (`learner.evaluation.shape.morph_demo.SCHEDULES`' keyframes);
 a parameterization offers those whose parameters it has."""
+RESET_CAUSES = {
+    "lost": f"the executor lost its target (mean body error > {LOST_M} m)",
+    "fell": "a shape controller fell (its task's termination)",
+    "time limit": "the episode's time limit (or a stopping schedule's end)",
+    "divergence": "the physics diverged",
+    "user": "asked for (the studio's reset, a new clip)",
+}
+"""The causes `LiveSession.step` and `reset` record in `last_reset`; an executor ended by one of
+its reward terms (a checkpoint's own termination rule) records the term's name."""
 PUSH_MOMENTUM_NS = 20.0
 """A shape controller's stand-in for a projectile: the executor's 2 kg ball at 10 m/s."""
 
@@ -159,6 +175,9 @@ class LiveSession:
         self.clip = clip
         self.mass_factor = 1.0
         self.steps = self.resets = 0
+        self.last_reset: str | None = None
+        self._tracking: tuple[str, float] | None = None
+        """The cause of the last reset (`RESET_CAUSES`, or a reward term's name); None before any."""
         self.episode_return = 0.0
         self.last: dict[str, Any] = {}
         self.scheduler: Any = None
@@ -167,7 +186,7 @@ class LiveSession:
         self.params = self.env.space.default_array.copy()
         if shape:
             self.params[: self.n_shape] = self.shape_vector(shape)
-        self.reset()
+        self.reset(cause=None)
 
     # ---- what the body is ----
 
@@ -243,15 +262,23 @@ class LiveSession:
 
     # ---- running ----
 
-    def reset(self) -> None:
+    def reset(self, cause: str | None = "user", restart: bool | None = None) -> None:
+        """A new episode. `cause` (None: a start, not counted) is counted in `resets` and kept
+        in `last_reset`. The executor's schedule is begun anew or resumed as `ExecutorEnv.reset`
+        decides (the dataset scheduler draws anew on `clip`; stitch, keyboard and video resume
+        on their current target frame); `restart=True` begins it from its start."""
+        if cause is not None:
+            self.resets += 1
+            self.last_reset = cause
         clip = self.clip if self.kind == "executor" else None
         if self.kind == "executor":
-            self.obs, _ = self.env.reset(self.seed + self.resets, self.params, clip_id=clip)
+            self.obs, _ = self.env.reset(self.seed + self.resets, self.params, clip_id=clip, restart=restart)
         else:
             self.obs, _ = self.env.reset(self.seed + self.resets, self.params)
         self._apply_mass()
         self.episode_return = 0.0
         self.episode_steps = 0
+        self._track()
 
     def action(self) -> np.ndarray:
         if self.agent == "zero":
@@ -279,17 +306,22 @@ class LiveSession:
             # at the first reward term below alpha: a viewer wants to see it recover or fall
             if float(info.get("body_error_m", 0.0)) > LOST_M:
                 ended = "lost"
+            elif term:
+                ended = str(info.get("ended_by") or "terminated")
+            elif trunc:
+                ended = "time limit"
         elif term:
             ended = "fell"
         elif trunc:
-            ended = "time"
+            ended = "time limit"
         self.last = {"step": self.steps, "reward": float(r), "terms": terms, "ended": ended,
                      "return": self.episode_return, "episode_steps": self.episode_steps, "reset": False,
                      **{k: info[k] for k in ("clip_id", "clip_time_s") if k in info}}
         if ended and self.auto_reset:
-            self.resets += 1
-            self.reset()
+            self.reset(cause=ended)
             self.last["reset"] = True
+        else:
+            self._track()
         return self.last
 
     # ---- steering ----
@@ -307,12 +339,13 @@ class LiveSession:
         return shape
 
     def use_scheduler(self, scheduler) -> None:
-        """Drive the executor with another scheduler (UniCon's run-time schedulers) from now."""
+        """Drive the executor with another scheduler (UniCon's run-time schedulers) from now:
+        a new episode that begins it (not counted as a reset)."""
         if self.kind != "executor":
             raise ValueError("schedulers drive the executor; a shape controller follows its own clip")
         self.env.use_scheduler(scheduler)
         self.scheduler = scheduler
-        self.reset()
+        self.reset(cause=None)
 
     def throw_projectile(self, speed_mps: float = 10.0) -> None:
         """The executor: a 2 kg ball at `speed_mps`; a shape controller: a sideways push of the
@@ -344,10 +377,26 @@ class LiveSession:
         base = self._base_masses.setdefault(id(m), (m.body_mass.copy(), m.body_inertia.copy()))
         scale_body_mass(m, base[0], base[1], self.mass_factor)
 
+    def tracking(self) -> tuple[str, float] | None:
+        """(clip id, seconds into it) the executor's scheduler tracked after the last step or
+        reset (its `status()`'s clip_id and clip_time_s; a live source: "video" and its clock);
+        None for a shape controller. Read on the stepping thread, so other threads (the
+        studio's page) may read this without touching the scheduler."""
+        return self._tracking
+
+    def _track(self) -> None:
+        if self.kind == "executor":
+            st = self.env.scheduler.status()
+            self._tracking = (str(st.get("clip_id", "")), float(st.get("clip_time_s", 0.0)))
+
+    def reset_text(self) -> str:
+        """'resets N' and, after one, the last one's cause: 'resets 3 (last: lost)'."""
+        return f"resets {self.resets}" + (f" (last: {self.last_reset})" if self.last_reset else "")
+
     def status(self) -> dict[str, Any]:
         """What the studio shows beside the character."""
         return {"kind": self.kind, "agent": self.agent, "checkpoint": str(self.loaded.path), "name": self.loaded.name,
-                "steps": self.steps, "resets": self.resets, "mass_factor": self.mass_factor,
+                "steps": self.steps, "resets": self.resets, "last_reset": self.last_reset, "mass_factor": self.mass_factor,
                 "shape": dict(zip(self.shape_names, map(float, self.params[: self.n_shape]))),
                 "height_m": self.body_height_m(), **self.last}
 

@@ -356,9 +356,11 @@ def keyboard_styles() -> list[str]:
 def status_markdown(snap: dict[str, Any]) -> str:
     what = "executor" if snap["kind"] == "executor" else "shape controller"
     parts = [f"**{snap['name']}** ({what})", f"agent {snap['agent']}", f"t {snap['time_s']:.1f} s",
-             f"return {snap['return']:.1f}", f"resets {snap['resets']}", f"mass x{snap['mass_factor']:.2f}"]
+             f"return {snap['return']:.1f}", snap.get("reset_text") or f"resets {snap['resets']}",
+             f"mass x{snap['mass_factor']:.2f}"]
     if snap["kind"] == "executor":
-        parts.append(f"{snap['scheduler']}: {snap['clip'] or '-'}")
+        when = f" {snap['clip_time_s']:.1f} s" if snap.get("clip_time_s") is not None else ""
+        parts.append(f"{snap['scheduler']}: {snap['clip'] or '-'}{when}")
     if snap.get("video"):
         parts.append(snap["video"].replace("*", "\\*"))
     if snap["paused"]:

@@ -283,7 +283,7 @@ class StudioCore:
                 raise ValueError(f"clip {clip!r} cannot play with this checkpoint; choose from: {', '.join(s.clips)}")
             if s.kind == "executor":
                 s.clip = clip
-                s.reset()
+                s.reset(restart=True)  # the clip from its start, not the running schedule resumed
                 return f"clip: {clip}"
             if clip == s.clip or (s.clip is None and len(s.clips) == 1):
                 return None
@@ -425,12 +425,15 @@ class StudioCore:
         t = np.array([h[0] for h in hist], float)
         terms = {n: np.array([h[2].get(n, np.nan) for h in hist], float) for n in names}
         last = s.last or {}
+        tracking = s.tracking()
         lo, hi = s.shape_box
         return {
             "name": self.label, "run_name": s.loaded.name, "kind": s.kind, "idle": self.idle,
             "video": video_status(self.scheduler), "agent": s.agent, "generation": self.generation,
             "time_s": s.steps * s.env.dt, "steps": s.steps, "loop_steps": self.loop_steps, "resets": s.resets,
-            "return": s.episode_return, "reward": float(last.get("reward", 0.0)), "clip": last.get("clip_id", s.clip),
+            "last_reset": s.last_reset, "reset_text": s.reset_text(),
+            "return": s.episode_return, "reward": float(last.get("reward", 0.0)),
+            "clip": tracking[0] if tracking else last.get("clip_id", s.clip), "clip_time_s": tracking[1] if tracking else None,
             "scheduler": self.scheduler_name, "mass_factor": s.mass_factor, "paused": self.paused,
             "errors": self.errors, "message": self.message, "message_is_error": self.message_is_error,
             "loading": self.loading, "t": t, "reward_hist": np.array([h[1] for h in hist], float), "terms": terms,

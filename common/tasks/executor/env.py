@@ -332,6 +332,8 @@ class ExecutorEnv:
                                           speed=self.ex.speed, at_end=self.ex.at_clip_end, lookback=lookback,
                                           lookahead=self.ex.tau + 1, velocity_window=self.ex.target_velocity_window,
                                           kinematics=self._fill_targets)
+        self._begun: Scheduler | None = None
+        """The scheduler `reset` last began (a swapped-in one is begun at the next reset)."""
         self.balls = [self.model.body(f"projectile{i}").id for i in range(PROJECTILES)] if self.ex.projectile else []
         self._thrown_at = [-1] * len(self.balls)
         self._next_ball = 0
@@ -390,7 +392,8 @@ class ExecutorEnv:
     def use_scheduler(self, scheduler: Scheduler) -> None:
         """Drive the targets with another scheduler (UniCon's run-time schedulers: dataset,
         stitch, keyboard, video; `scheduler_factory.make_scheduler` builds them for this env).
-        The next `reset` begins it; the old one is not closed (its owner closes it)."""
+        The next `reset` begins it (later resets begin or resume it, see `reset`); the old one is
+        not closed (its owner closes it)."""
         for name in ("begin", "frame", "advance", "status"):
             if not callable(getattr(scheduler, name, None)):
                 raise TypeError(f"{type(scheduler).__name__} is not a Scheduler: it has no {name}()")
@@ -493,17 +496,42 @@ class ExecutorEnv:
 
     # ---- the Env contract ----
 
+    def begins_on_reset(self, restart: bool | None = None) -> bool:
+        """Whether `reset(..., restart=restart)` begins the scheduler anew (True) or resumes it:
+        begun when `restart` is True, when it was not begun since `use_scheduler`, when it is
+        `done`, or when it `restarts_on_reset` (absent: True, the behaviour before resuming existed)."""
+        s = self.scheduler
+        if restart or self._begun is not s or getattr(s, "done", False):
+            return True
+        return restart is None and bool(getattr(s, "restarts_on_reset", True))
+
     def reset(self, seed: int | None, params: np.ndarray, clip_id: str | None = None, start_s: float | None = None,
-              ) -> tuple[np.ndarray, dict]:
-        """Start an episode on `clip_id` (a balanced draw when None) at `start_s` (random when
-        None); reactive initialization places the character off the tracked frame, except on the
-        `on_frame_share` of starts that begin on it with the rule from the first step."""
+              restart: bool | None = None) -> tuple[np.ndarray, dict]:
+        """Start an episode. Whether the scheduler is begun anew or resumed (`begins_on_reset`):
+
+        - begun (the `DatasetScheduler`, whose `restarts_on_reset` is True, at every reset; any
+          scheduler at the first reset after `use_scheduler`, when it is `done`, or with
+          `restart=True`): `scheduler.begin` on `clip_id` (a balanced draw when None) at
+          `start_s` (random when None); reactive initialization places the character off the
+          tracked frame, except on the `on_frame_share` of starts that begin on it with the rule
+          from the first step;
+        - resumed (stitch, keyboard, video: `restarts_on_reset` False): the schedule is left
+          where it is (the stitch queue's clip and time, the key script's clock, the video
+          clock go on) and the character is put on its current target frame (offset 0, no
+          reactive initialization, no catch-up grace); `clip_id` and `start_s` are ignored and
+          no random numbers are drawn. `restart=False` resumes even a scheduler that restarts on
+          reset (once it was begun and is not done)."""
         if seed is not None:
             self.rng = np.random.default_rng(seed)
         self.params = self.space.validate(params).astype(np.float64)
-        self.scheduler.begin(self.rng, clip_id or None, start_s)
-        # Drawn only when some starts are on the frame: with none, the episode's draws are unchanged.
-        on_frame = self.ex.on_frame_share > 0 and self.rng.random() < self.ex.on_frame_share
+        resumed = not self.begins_on_reset(restart)
+        if resumed:
+            on_frame = True
+        else:
+            self.scheduler.begin(self.rng, clip_id or None, start_s)
+            self._begun = self.scheduler
+            # Drawn only when some starts are on the frame: with none, the episode's draws are unchanged.
+            on_frame = self.ex.on_frame_share > 0 and self.rng.random() < self.ex.on_frame_share
         reactive = self.ex.reactive_init and not on_frame
         offset = 0
         if reactive:
@@ -524,7 +552,7 @@ class ExecutorEnv:
         self.last_terms: dict[str, float] = {}
         self._segment_clip = getattr(self.scheduler, "clip_id", "")
         return self.observe_now(), {"clip_id": getattr(self.scheduler, "clip_id", ""), "rsis_offset": offset,
-                                                   "on_frame": on_frame}
+                                                   "on_frame": on_frame, "resumed": resumed}
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
         obs, rewards, terminated, truncated, infos = step_envs([self], np.asarray(action)[None])

@@ -149,3 +149,43 @@ def test_play_status_shows_video_packets_received_and_rejected_by_reason() -> No
         assert line.endswith("last: joint_count: packet has 16 joints, this receiver expects 15")
     finally:
         scheduler.close()
+
+
+def forced_resets(session: LiveSession, steps: int, every: int = 60, until=None) -> int:
+    """Step `session`, resetting it every `every` control steps (1 s at 60 Hz) on top of its
+    own resets; returns the step at which `until(session)` first held (or `steps`)."""
+    for k in range(1, steps + 1):
+        session.step()
+        if until is not None and until(session):
+            return k
+        if k % every == 0:
+            session.reset(cause="forced")
+    return steps
+
+
+def test_a_stitched_second_clip_is_reached_under_a_reset_every_second() -> None:
+    """Issue 53: every reset rewound the stitch queue, so with the shipped executor (which loses
+    the target about once a second) the run after the walk (1.27 s) was never reached. A reset
+    resumes the queue: measured, the run is tracked from step 76 (the transition into it)."""
+    from learner.live.play import PlayOptions, make_session, status_line
+
+    session, _ = make_session(PlayOptions(checkpoint=EXECUTOR, scheduler="stitch", stitch=("humanoid3d_walk", "humanoid3d_run")))
+    reached = forced_resets(session, 240, until=lambda s: s.tracking()[0] == "humanoid3d_run")
+    assert session.tracking()[0] == "humanoid3d_run" and reached < 120, (reached, status_line(session))
+    assert session.resets >= 1
+    line = status_line(session)
+    assert "humanoid3d_run" in line and f"resets {session.resets} (last: " in line
+
+
+def test_later_keys_of_the_script_take_effect_under_a_reset_every_second() -> None:
+    """`--keys 1:left 3:faster 5:style:run` used to restart at every reset (every 1.0 s), so
+    faster and style:run never came. Resumed, the script's clock goes on over the resets."""
+    from learner.live.play import PlayOptions, make_session
+
+    session, scheduler = make_session(PlayOptions(checkpoint=EXECUTOR, scheduler="keyboard",
+                                                  keys=((1.0, "left"), (3.0, "faster"), (5.0, "style:run"))))
+    forced_resets(session, 6 * 60 + 30)
+    assert session.resets >= 6
+    assert [key for _, key in scheduler.log] == ["left", "faster", "style:run"]
+    assert scheduler.style == "run" and scheduler.target_speed > 1.0
+    assert session.tracking()[0] == scheduler.styles["run"]

@@ -49,6 +49,12 @@ class TargetFrame:
 class Scheduler(Protocol):
     clip_id: str
     """What is being tracked now, by name (a clip id; "video" for a live source)."""
+    restarts_on_reset: bool
+    """What an episode's reset does to the schedule (`ExecutorEnv.reset`): True, `begin` it
+    anew (the dataset scheduler: a new draw every episode, as training needs); False, resume it
+    where it is, the character put on the current target frame (stitch, keyboard, video: a
+    reset never rewinds the queue, the key script or the clock). The first reset after
+    `ExecutorEnv.use_scheduler` begins any scheduler."""
 
     def begin(self, rng: np.random.Generator, clip_id: str | None = None, start_s: float | None = None,
               align_to: np.ndarray | None = None) -> None:
@@ -67,7 +73,8 @@ class Scheduler(Protocol):
         """The schedule has no next frame (a stopping scheduler at its end)."""
 
     def status(self) -> dict:
-        """What is being tracked, for logs and evaluation (clip id, time in the clip)."""
+        """What is being tracked, for logs, evaluation and the live status: at least clip_id
+        and clip_time_s (seconds into that clip; a live source: its clock)."""
 
 
 def yaw_quat(yaw: float) -> np.ndarray:
@@ -115,6 +122,9 @@ class DatasetScheduler:
     one-sided at its first and last frames), in real time, so a faster playback has faster
     targets.
     """
+
+    restarts_on_reset = True
+    """Every episode's reset begins a new draw (training's episodes are independent starts)."""
 
     def __init__(self, model: mujoco.MjModel, motion: MotionFn, clips: ClipManager | Sequence[str],
                  probabilities: np.ndarray | None, dt_s: float, *, speed: float = 1.0, at_end: str = "reschedule",

@@ -29,6 +29,10 @@ mass_run) cyclically:
 Future frames (the executor's lookahead) are predicted with the commands as they are; past
 frames are those generated (at `begin`, synthesized backwards). Velocities are centred
 differences of neighbouring frames (`mj_differentiatePos`).
+
+An episode's reset resumes the generator (`restarts_on_reset` False): the style, heading, speed
+and the script's clock go on, the character is put on the current frame; only `begin` (the
+first reset after `ExecutorEnv.use_scheduler`) restarts the script.
 """
 
 from __future__ import annotations
@@ -107,6 +111,9 @@ class KeyboardScheduler:
     `locomotion_styles()`). script: timed commands [(seconds after `begin`, key), ...].
     lookback/lookahead: frames kept before / predicted after frame 0.
     """
+
+    restarts_on_reset = False
+    """A reset resumes the generator and the script's clock, never restarts them."""
 
     def __init__(self, model: mujoco.MjModel, motion_fn: MotionFn, dt_s: float, *, style: str = "walk",
                  styles: dict[str, str] | None = None, speed: float = 1.0, heading_rad: float = 0.0,

@@ -23,7 +23,9 @@ So a stitch spreads the pose difference of the two clips over the transition: no
 is larger than that difference / (transition steps + 1) (a test checks it against the steps
 within the clips). When the queue runs dry the last frame is held (`at_end="hold"`, targets at
 rest), or the schedule is `done` (`at_end="stop"`), or, with `loop=True`, everything enqueued
-so far is queued again. `begin` restarts that program from its top.
+so far is queued again. `begin` restarts that program from its top; an episode's reset does
+not call it (`restarts_on_reset` is False: `ExecutorEnv.reset` puts the character on the
+current frame and the queue plays on).
 """
 
 from __future__ import annotations
@@ -76,6 +78,9 @@ class StitchScheduler:
     -lookback) and needed after it. known_ids: the clip ids `enqueue` accepts (plus
     `extra_ids`); None asks `motion_fn` and turns its error into a ValueError.
     """
+
+    restarts_on_reset = False
+    """A reset resumes the queue where it is (the clip and its time), never rewinds it."""
 
     def __init__(self, model: mujoco.MjModel, motion_fn: MotionFn, dt_s: float, clips: Iterable[ClipSpec] = (), *,
                  transition_s: float = 0.3, loop: bool = False, at_end: str = "hold", speed: float = 1.0,

@@ -32,7 +32,9 @@ count) with the message in `last_error`, and the scheduler keeps serving the las
 Before the first packet it serves the model's rest pose (`qpos0`).
 
 Placement: frames are where the sender says; `begin(..., align_to=qpos)` shifts them
-horizontally so the root starts under the character (from the first packet if none yet).
+horizontally so the root starts under the character (from the first packet if none yet). An
+episode's reset resumes the clock (`restarts_on_reset` False): the character is put on the
+frame playing now.
 """
 
 from __future__ import annotations
@@ -63,6 +65,9 @@ class VideoScheduler:
     delay_s should cover the lookahead (tau + 1 steps and one more for the velocity) so those
     frames are interpolated, and buffer_s the lookback (`make_scheduler` sees to both).
     """
+
+    restarts_on_reset = False
+    """A reset resumes the playback clock where it is (the character is put on the frame now)."""
 
     def __init__(self, model: mujoco.MjModel, dt_s: float, *, host: str = "127.0.0.1", port: int = 0,
                  delay_s: float = 0.1, buffer_s: float = 2.0, sync_gain: float = 0.1, snap_s: float = 0.5,

@@ -430,3 +430,36 @@ def test_executor_runs_with_each_scheduler(env, name):
         env.use_scheduler(make_scheduler("dataset", env))
     with pytest.raises(TypeError, match="not a Scheduler"):
         env.use_scheduler(object())
+
+
+def test_a_reset_resumes_stitch_keyboard_and_video_and_redraws_the_dataset(env):
+    """`ExecutorEnv.reset`: the first reset after `use_scheduler` begins a scheduler; later
+    ones resume stitch (and keyboard, video: `restarts_on_reset` False) with the character on
+    the current target frame, while the dataset scheduler begins a new draw at each one."""
+    assert DatasetScheduler.restarts_on_reset and not any(
+        c.restarts_on_reset for c in (StitchScheduler, KeyboardScheduler, VideoScheduler))
+    s = make_scheduler("stitch", env, clips=(WALK, "humanoid3d_run"))
+    try:
+        env.use_scheduler(s)
+        _, info = env.reset(0, env.space.default_array)
+        assert not info["resumed"] and s.status()["clip_time_s"] == pytest.approx(0.0)
+        for _ in range(30):
+            env.step(np.zeros(env.act_dim))
+        before = s.status()
+        target = s.frame(0).qpos.copy()
+        _, info = env.reset(1, env.space.default_array, clip_id=WALK)  # a clip id does not rewind a resumed queue
+        assert info["resumed"] and info["rsis_offset"] == 0 and env.grace == 0
+        assert s.status()["clip_time_s"] == pytest.approx(before["clip_time_s"]) == pytest.approx(30 * env.dt)
+        q = env.qpos  # on the frame (lifted out of the floor at most)
+        np.testing.assert_allclose(np.r_[q[0:2], q[3:]], np.r_[target[0:2], target[3:]], atol=1e-9)
+        assert q[2] >= target[2] - 1e-9
+        _, info = env.reset(2, env.space.default_array, restart=True)
+        assert not info["resumed"] and s.status()["clip_time_s"] == pytest.approx(0.0)
+    finally:
+        env.use_scheduler(make_scheduler("dataset", env))
+    draws = set()
+    for seed in range(4):
+        _, info = env.reset(seed, env.space.default_array)
+        assert not info["resumed"]
+        draws.add((info["clip_id"], round(env.scheduler.t0, 6)))
+    assert len(draws) > 1
