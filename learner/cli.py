@@ -40,8 +40,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
 def dispatch(prog: str, what: str, table: dict[str, tuple[str | Callable[[list[str]], int], str]],
              argv: list[str]) -> int:
     """Run `table[argv[0]]`'s `main(argv[1:])`: a module's (named by a string, imported only when
-    chosen) or the function given; `--help` lists the table; an unknown name is a one-line usage
-    error (exit 2). Also the dispatcher of `morphmimic bench` and `morphmimic motion`."""
+    chosen) or the function given; `--help` lists the table; an unknown name, or a command that
+    ends with `SystemExit(message)` (a bad checkpoint, say), is a one-line usage error (exit 2). Also the dispatcher of `morphmimic bench` and `morphmimic motion`."""
     width = max(len(name) for name in table)
     lines = [f"usage: {prog} <{what}> [options]   ({prog} <{what}> --help for its options)", "", f"{what}s:"]
     lines += [f"  {name:<{width}}  {text}" for name, (_, text) in table.items()]
@@ -53,7 +53,13 @@ def dispatch(prog: str, what: str, table: dict[str, tuple[str | Callable[[list[s
         return 2
     target = table[argv[0]][0]
     run = importlib.import_module(target).main if isinstance(target, str) else target
-    return int(run(argv[1:]) or 0)
+    try:
+        return int(run(argv[1:]) or 0)
+    except SystemExit as exc:
+        if isinstance(exc.code, str):  # a refusal raised as SystemExit(message): one line, a usage error
+            print(f"{prog} {argv[0]}: {exc.code}", file=sys.stderr)
+            return 2
+        raise
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -33,3 +33,12 @@ def test_train_help_is_short_and_help_all_is_the_whole_tree(capsys) -> None:
     assert "--preset NAME" in short and "--help-all shows every option" in short and "Step budget" in short
     assert "(default: 400000)" in short and "(default: 50000000)" in executor  # the chosen preset's defaults
     assert "--ppo.lr" in full and "--ppo.lr" not in short
+
+
+def test_a_missing_checkpoint_is_one_line_and_exit_2_for_every_command_that_takes_one(tmp_path, capsys) -> None:
+    missing = str(tmp_path / "no-such-run")
+    for argv in (["evaluate", "--checkpoint", missing], ["play", "--checkpoint", missing, "--seconds", "1"],
+                 ["robustness", "--checkpoint", missing]):
+        assert cli.main(argv) == 2, argv
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"morphmimic {argv[0]}: ") and "no-such-run" in err[0], err
