@@ -115,14 +115,25 @@ class MorphmimicEnv(gymnasium.Env):
         given = options.get("params", options.get("shape"))
         if "shape" in options and not isinstance(given, Mapping):
             raise ValueError(f"reset option 'shape' takes a mapping of {list(self.param_space.names)} to values")
-        params = self.param_space.uniform(self.np_random, 1)[0] if given is None else self.param_space.validate(given)
+        try:
+            params = self.param_space.uniform(self.np_random, 1)[0] if given is None else self.param_space.validate(given)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"reset option {'shape' if 'shape' in options else 'params'!r} = {given!r}: {exc}; give "
+                             f"{len(self.param_space.names)} numbers in the order {list(self.param_space.names)}") from None
         extra: dict[str, Any] = {}
         if options.get("clip_id") is not None:
-            extra["clip_id"] = str(options["clip_id"])
+            if not isinstance(options["clip_id"], str) or not self._takes_start:
+                raise ValueError(f"reset option 'clip_id' = {options['clip_id']!r}: give a clip id (str) of a task that "
+                                 f"tracks clips; {self.task} tracks none" if not self._takes_start else
+                                 f"reset option 'clip_id' = {options['clip_id']!r}: give a clip id (str)")
+            extra["clip_id"] = options["clip_id"]
         if options.get("start_s") is not None:
             if not self._takes_start:
                 raise ValueError(f"reset option 'start_s': {self.task} starts where its own rules say")
-            extra["start_s"] = float(options["start_s"])
+            try:
+                extra["start_s"] = float(options["start_s"])
+            except (TypeError, ValueError):
+                raise ValueError(f"reset option 'start_s' = {options['start_s']!r}: give seconds into the clip") from None
         return params, extra
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:

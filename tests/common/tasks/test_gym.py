@@ -111,3 +111,15 @@ def test_readme_loop_runs() -> None:
     scope: dict = {}
     exec(compile(loop[0], "README.md", "exec"), scope)
     assert scope["frame"].shape == (480, 480, 3)
+
+
+@pytest.mark.parametrize("options, says", [
+    ({"params": "x"}, "reset option 'params' = 'x'"),
+    ({"params": [0.1, 9.0]}, "out of range"),
+    ({"clip_id": 3}, "reset option 'clip_id' = 3"),
+    ({"start_s": 1.0}, "reset option 'start_s'"),
+])
+def test_bad_reset_options_name_the_option_and_what_is_allowed(options, says) -> None:
+    env = gymnasium.make("morphmimic/Reach-v0")
+    with pytest.raises(ValueError, match=re.escape(says)):
+        env.reset(seed=0, options=options)
