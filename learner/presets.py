@@ -123,9 +123,39 @@ def _executor_preset(variant: str = "") -> RunConfig:
     )
 
 
+TRACK_LOG_STD = -2.3
+"""The `executor-track` preset's fixed action log-std: std 0.1 action units, 0.05 rad of PD
+target at `pd_action_scale` 0.5, held for the whole run (the `executor-pd` noise shrank from 0.068
+to 0.041 rad). MimicKit, PHC and ProtoMotions hold about 0.1-0.17 rad, but they do not end an
+episode on the joint-velocity term; under the five-term rule from the first step, noise of
+0.1 rad alone ends episodes after 5.5 control steps on average (254 of 274 by joint velocity),
+against 27.5 with zero actions and 26.1 at 0.05 rad (random actions of each std on the track
+task, 1,500 steps from seed 1; the command is in
+`docs/experiments/2026-12-06-executor-track-recipe.md`)."""
+
+
+def _track_preset() -> RunConfig:
+    """The executor trained on the rule it is evaluated by over the whole library (issue 52):
+    the task from `common.tasks.executor.presets.track_config`, and a learner set for it.
+
+    Deviations from `executor-pd` and why: fixed action noise of 0.05 rad (`TRACK_LOG_STD`);
+    32,768 transitions per update (MimicKit 131 k, PHC 98 k, UniCon 262 k; the executor-pd's
+    8,192 gave one clip's rare frames a handful of samples per update) in 5 epochs of 4,096 (the
+    larger minibatch is cheaper per sample, docs/benchmarks.md); the step size by an adaptive KL
+    target of 0.01 instead of a fixed lr with a KL stop, which moved the mean about 0.004 rad per
+    update; gamma 0.99 (MimicKit, PHC, mjlab; 0.95 valued 20 steps ahead, a third of a second)."""
+    base = _executor_preset("track")
+    return dataclasses.replace(
+        base, name="executor-track", total_env_steps=200_000_000, steps_per_iteration=32_768, checkpoint_every=5,
+        policy=PolicyConfig(hidden=(256, 256, 256), init_log_std=TRACK_LOG_STD, learn_log_std=False),
+        ppo=PPOConfig(gamma=0.99, epochs=5, minibatch=4096, lr=1e-4, lr_schedule="adaptive", kl_target=0.01,
+                      proximal_anchor=True),
+    )
+
+
 def _add_executor_presets() -> None:
     for variant, vtext in EXECUTOR_VARIANTS.items():
-        cfg = _executor_preset(variant)
+        cfg = _track_preset() if variant == "track" else _executor_preset(variant)
         PRESETS[cfg.name] = (f"UniCon motion executor on the DeepMimic humanoid over its clip library; {vtext}", cfg)
 
 

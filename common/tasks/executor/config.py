@@ -151,6 +151,17 @@ class ExecutorConfig:
     on track within the wait and lose it again inside it, so after_steps trains on states the
     rule would already have ended; on_track changed no evaluation figure
     (`docs/experiments/2026-12-03-executor-where-training-episodes-end.md`)."""
+    action_rate_weight: float = 0.0
+    """Weight w of an action-rate penalty subtracted from the step's reward: w x the mean over
+    actuators of (a_t - a_t-1)^2, the actions as applied (pd: clipped to +-3; torque: +-1; a_-1 = 0
+    at a start), as mjlab's and ProtoMotions' action_rate_l2 (not in UniCon). From a perfect state
+    the shipped policy's first action broke the velocity term where its PD alone did not; the
+    penalty makes jerks cost. 0: off (every checkpoint trained before it). The step's reward is
+    then in [-36 w, 1] (`rewards.reward_range`)."""
+    previous_action_obs: bool = False
+    """Append the previous control step's action as applied (zeros after a start) to the
+    observation, as mjlab and ProtoMotions do, so the policy can see what the action-rate penalty
+    compares with. Off: the observation of every checkpoint trained before it."""
     at_clip_end: Literal["reschedule", "stop"] = "reschedule"
     """What the dataset scheduler does when a clip's end is reached: reschedule a random clip
     and frame (training), or stop, which truncates the episode (evaluation)."""
@@ -169,6 +180,7 @@ class ExecutorConfig:
         "on_frame_share": between(0, 1),
         "speed": between(0.05, 10), "ankle_armature": between(0, 10), "arm_armature": between(0, 10),
         "target_velocity_window": between(1, 30, integer=True), "reference_filter_hz": between(0, 30),
+        "action_rate_weight": between(0, 10),
     }
     """Allowed values of the numeric fields (`common.config_limits`)."""
 

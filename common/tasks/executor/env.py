@@ -548,6 +548,7 @@ class ExecutorEnv:
         self._park_projectile()
         lift_out_of_floor(self.model, self.data)
         self.k = 0
+        self.previous_action = np.zeros(self.nu)
         self.grace = 0 if on_frame else self.ex.catch_up_steps
         self.last_terms: dict[str, float] = {}
         self._segment_clip = getattr(self.scheduler, "clip_id", "")
@@ -726,7 +727,10 @@ def observe(envs: Sequence[ExecutorEnv], actual: BodyKin, targets: Targets | Non
     if targets is None:
         targets = target_rows(envs, table_slots(envs))
     params = _stack([env.params for env in envs])
-    return observation_of(actual, targets.features, targets.root_pos, targets.root_rot, params)
+    obs = observation_of(actual, targets.features, targets.root_pos, targets.root_rot, params)
+    if envs[0].ex.previous_action_obs:
+        obs = np.concatenate([obs, _stack([env.previous_action for env in envs]).astype(np.float32)], axis=-1)
+    return obs
 
 
 def _mean_length(d: np.ndarray) -> np.ndarray:
@@ -777,15 +781,16 @@ def step_envs(envs: Sequence[ExecutorEnv], actions: np.ndarray) -> tuple[np.ndar
     a = np.asarray(actions, dtype=np.float64)
     if not np.isfinite(a).all():  # checked first: nan_to_num on every step cost 30 us
         a = np.nan_to_num(a)
+    applied = np.clip(a, -rw.ACTION_BOUNDS[ex.actuation], rw.ACTION_BOUNDS[ex.actuation])
     if ex.actuation == "torque":
-        ctrl = np.clip(a, -1.0, 1.0)
+        ctrl = applied
     else:
         if slots is not None:  # the next frames' PD targets, computed once per schedule row
             zero = table.pd[slots, table.next_row[slots]]
         else:
             nxt = [env.scheduler.frame(1) for env in envs]
             zero = pd_targets(first.layout, _stack([f.qpos for f in nxt]), _stack([f.qvel for f in nxt]), first.pd_lead_s)
-        ctrl = zero + ex.pd_action_scale * np.clip(a, -3.0, 3.0)
+        ctrl = zero + ex.pd_action_scale * applied
     terminated, truncated = [False] * n, [False] * n
     infos: list[dict] = [{} for _ in range(n)]
     step_mean = ex.joint_velocity == "step_mean"
@@ -835,6 +840,11 @@ def step_envs(envs: Sequence[ExecutorEnv], actions: np.ndarray) -> tuple[np.ndar
     errors, positions = tracking_errors(running, q, actual, targets, befores)
     terms = rw.term_values(errors, ex.reward_scales)
     step_rewards = rw.weighted_sums(terms, ex.reward_weights)
+    if ex.action_rate_weight > 0.0:
+        penalties = rw.action_rate_penalties(applied, _stack([env.previous_action for env in envs]), ex.action_rate_weight)
+        step_rewards = step_rewards - (penalties if every else penalties[live])
+    for env, act in zip(envs, applied):  # what the next observation shows and the next penalty compares with
+        env.previous_action = act
     ends = rw.terminations(terms, ex.reward_weights, ex.termination, ex.alpha, ex.terminate_on)
     if every:
         obs, rewards = observe(running, actual, targets), step_rewards

@@ -19,11 +19,12 @@ from __future__ import annotations
 from common.tasks.base import TaskConfig
 from common.tasks.body_config import BodyConfig
 from common.tasks.executor.config import ExecutorConfig
-from common.tasks.executor.rewards import POSE_TERMS
+from common.tasks.executor.rewards import POSE_TERMS, TERMS
 
 VARIANTS: dict[str, str] = {
     "": "torque, per-term termination, balancer, reactive initialization",
     "pd": "ablation: PD targets instead of torques",
+    "track": "PD targets, trained on the rule it is evaluated by, over the whole library (issue 52's recipe)",
     "noterm": "ablation: sum rule, no per-term termination",
     "uniform": "ablation: uniform clip draws, no balancer",
     "norsis": "ablation: no reactive initialization",
@@ -35,6 +36,9 @@ def executor_task(variant: str = "") -> TaskConfig:
     """The executor's task configuration in `variant` (a key of `VARIANTS`)."""
     if variant not in VARIANTS:
         raise ValueError(f"executor variant {variant!r} is not one of {sorted(VARIANTS)}")
+    if variant == "track":
+        return TaskConfig(name="executor", control_hz=60.0, sim_hz=240.0, episode_s=20.0,
+                          body=BodyConfig(parameterization="height_thickness", vary_shape=False), executor=track_config())
     ex = ExecutorConfig(
         actuation="pd" if variant == "pd" else "torque",
         pd_velocity_target=variant == "pd",
@@ -48,3 +52,26 @@ def executor_task(variant: str = "") -> TaskConfig:
     )
     return TaskConfig(name="executor", control_hz=60.0, sim_hz=240.0, episode_s=20.0,
                       body=BodyConfig(parameterization="height_thickness", vary_shape=False), executor=ex)
+
+
+def track_config() -> ExecutorConfig:
+    """The executor trained on the rule it is evaluated by (the "track" variant): what the
+    evaluation watches is what ends a training episode, and the references are cleaned first.
+
+    - References cleaned once (`docs/experiments/2026-12-06-executor-reference-cleaning.md`):
+      tracks low-pass filtered at 7 Hz, lifted out of the floor, PD targets clamped to widened ranges.
+    - Rule: all five terms, joint velocity included, from the first step on 80% of starts, which
+      are on the tracked frame exactly as the evaluation starts; the other 20% start reactively
+      (UniCon 5.2) and the rule waits for them only until every term is back above alpha
+      (`catch_up_ends = "on_track"`, at most `catch_up_steps`).
+    - At a clip's end the episode truncates (and bootstraps) instead of rescheduling a random
+      clip under a new wait: every start is then the sampler's draw.
+    - An action-rate penalty (w = 0.1 on the mean squared change, mjlab's action_rate_l2) and the
+      previous action in the observation.
+    - The whole library: DeepMimic, MASS and the Bandai Namco takes (CC BY-NC 4.0)."""
+    return ExecutorConfig(
+        library="full", actuation="pd", pd_velocity_target=True, ankle_armature=0.1, arm_armature=0.1,
+        reference_filter_hz=7.0, reference_floor=True, pd_target_range="widened",
+        terminate_on=TERMS, on_frame_share=0.8, catch_up_ends="on_track", at_clip_end="stop",
+        action_rate_weight=0.1, previous_action_obs=True,
+    )

@@ -156,3 +156,22 @@ def termination(terms: dict[str, float], weights: tuple[float, ...], rule: str, 
     alpha (returns that term's name; UniCon watches all five), "sum" when the weighted sum is
     below alpha ("sum"), "none" never."""
     return terminations(np.array([[terms[name] for name in TERMS]], dtype=np.float64), weights, rule, alpha, watch)[0]
+
+
+ACTION_BOUNDS = {"pd": 3.0, "torque": 1.0}
+"""The largest |action| each actuation applies (`ExecutorEnv.step`'s clip): pd +-3 (times
+`pd_action_scale` rad), torque +-1 (times the DOF's effort factor)."""
+
+
+def action_rate_penalties(actions: np.ndarray, previous: np.ndarray, weight: float) -> np.ndarray:
+    """w x mean_j (a_j - a'_j)^2 `[N]` of applied actions `[N, nu]` and the previous step's
+    `[N, nu]` (mjlab's and ProtoMotions' action_rate_l2 as a mean over actuators, so the weight
+    does not depend on the body's actuator count; `ExecutorConfig.action_rate_weight`)."""
+    d = np.asarray(actions, dtype=np.float64) - previous
+    return weight * np.add.reduce(d * d, axis=-1) / d.shape[-1]
+
+
+def reward_range(weights: tuple[float, ...], action_rate_weight: float, actuation: str) -> tuple[float, float]:
+    """(lowest, highest) step reward: the weighted terms lie in [0, sum of `weights`] (each term
+    in (0, 1]), less at most w x (2 x bound)^2 of the action-rate penalty."""
+    return -action_rate_weight * (2.0 * ACTION_BOUNDS[actuation]) ** 2, float(sum(weights))

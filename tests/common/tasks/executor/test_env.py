@@ -546,3 +546,33 @@ def test_mirror_images_join_their_sources_side_of_the_split():
     assert env.scheduler.status()["clip_id"] == "humanoid3d_kick~mirror"
     with pytest.raises(ValueError, match="do not play on the humanoid"):
         labelled_clips(cfg_with(clips=("humanoid3d_walk~flipped",)))
+
+
+def test_action_rate_penalty_and_previous_action_in_the_observation():
+    """The reward is the weighted terms less w x the mean squared change of the applied action
+    (a_-1 = 0 after a start, actions clipped to +-3 for PD targets), and the observation ends with
+    the action just applied; without the switches the observation is as before."""
+    w = 0.25
+    plain = make_env(cfg_with(actuation="pd", reactive_init=False), seed=0)
+    env = make_env(cfg_with(actuation="pd", reactive_init=False, action_rate_weight=w, previous_action_obs=True), seed=0)
+    assert env.obs_dim == plain.obs_dim + env.act_dim
+    clip = env.scheduler.clip_ids[0]
+    obs, _ = env.reset(0, env.space.default_array, clip, 0.0)
+    assert np.array_equal(obs[-env.act_dim:], np.zeros(env.act_dim))
+    plain.reset(0, plain.space.default_array, clip, 0.0)
+    rng = np.random.default_rng(0)
+    previous = np.zeros(env.act_dim)
+    for _ in range(3):
+        action = rng.normal(0.0, 0.02, env.act_dim)
+        action[0] = 7.0  # applied as 3.0
+        obs, r, term, *_ = env.step(action)
+        obs_plain, r_plain, *_ = plain.step(action)
+        applied = np.clip(action, -3.0, 3.0)
+        assert np.array_equal(obs[: plain.obs_dim], obs_plain)
+        assert np.allclose(obs[-env.act_dim:], applied.astype(np.float32))
+        assert r == pytest.approx(r_plain - w * np.mean((applied - previous) ** 2), abs=1e-12)
+        previous = applied
+        assert not term
+    lo, hi = rw.reward_range(env.ex.reward_weights, w, "pd")
+    assert lo == -w * 36.0 and hi == pytest.approx(1.0)
+    assert rw.action_rate_penalties(np.array([[1.0, -1.0]]), np.array([[0.0, 1.0]]), 0.5)[0] == 0.5 * (1 + 4) / 2
