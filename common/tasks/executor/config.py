@@ -34,7 +34,11 @@ class ExecutorConfig:
     """balancer: clips are drawn by walking the class tree (UniCon 5.1, eq. 8); uniform: every
     clip equally likely (the ablation: the task relabels its clips so the balancer is flat)."""
     tau: int = 1
-    """Target frames in the observation: X_t+1 .. X_t+tau (UniCon: 1)."""
+    """Target frames in the observation: X_t+1 .. X_t+tau (UniCon: 1); `preview` overrides it."""
+    preview: tuple[int, ...] = ()
+    """Control steps ahead of the target frames in the observation, e.g. 1 2 4 (a short preview
+    as mjlab's and ProtoMotions' future frames, more of the future for fewer inputs than tau = 4);
+    increasing, the first 1 (the frame the PD targets come from). Empty: 1 .. tau."""
     actuation: Literal["torque", "pd"] = "torque"
     """torque: the action is a torque per DOF, a in [-1, 1] times that DOF's effort factor
     (UniCon); pd: the action is a deviation from the next target frame's joint angles, tracked by
@@ -184,9 +188,18 @@ class ExecutorConfig:
     }
     """Allowed values of the numeric fields (`common.config_limits`)."""
 
+    @property
+    def observed_offsets(self) -> tuple[int, ...]:
+        """Control steps ahead of each observed target frame: `preview`, else 1 .. `tau`."""
+        return self.preview or tuple(range(1, self.tau + 1))
+
     def validate(self) -> None:
         """ValueError naming the first value outside what is allowed."""
         check_limits(self)
+        p = self.preview
+        if p and (p[0] != 1 or any(b <= a for a, b in zip(p, p[1:])) or p[-1] > 60):
+            raise ValueError(f"--task.executor.preview = {' '.join(map(str, p))} is not allowed: give increasing "
+                             "control-step offsets starting at 1, at most 60 (e.g. 1 2 4), or none for 1 .. tau")
         if len(self.rsis_frames) != 2:
             raise ValueError(f"--task.executor.rsis-frames = {self.rsis_frames} is not allowed: give two integers, low high")
         lo, hi = self.rsis_frames

@@ -6,7 +6,8 @@ DeepMimic humanoid, over a whole clip library.
   (`ExecutorConfig.at_clip_end`) to a clip and frame drawn by the environment's `ClipManager`
   (`clip_manager`: the task's clips under the motion balancer, without the sampler's adaptive
   weights, which stay in the sampler service).
-- Observation: s_t = [shape params, o(X_now), o(X~_t+1), y(X~_t+1), ... up to tau]
+- Observation: s_t = [shape params, o(X_now), o(X~_t+1), y(X~_t+1), ... up to tau (or the
+  `preview` offsets), the previous action with `previous_action_obs`]
   (`executor_obs.py`): agent-centric, unchanged by where the character stands or faces.
 - Action (`ExecutorConfig.actuation`): torques, a in [-1, 1] per DOF times its effort factor
   (`EFFORT_70KG_NM`, UniCon's 50-600 N m for its 70 kg humanoid, scaled by mass to this one);
@@ -330,7 +331,7 @@ class ExecutorEnv:
         lookback = self.ex.rsis_frames[1] + 1
         self.scheduler = DatasetScheduler(self.ref_model, self._motion, self.clip_manager, None, self.dt,
                                           speed=self.ex.speed, at_end=self.ex.at_clip_end, lookback=lookback,
-                                          lookahead=self.ex.tau + 1, velocity_window=self.ex.target_velocity_window,
+                                          lookahead=self.ex.observed_offsets[-1] + 1, velocity_window=self.ex.target_velocity_window,
                                           kinematics=self._fill_targets)
         self._begun: Scheduler | None = None
         """The scheduler `reset` last began (a swapped-in one is begun at the next reset)."""
@@ -448,7 +449,7 @@ class ExecutorEnv:
         """The environment's `TargetTable`: one of its own, made on first use, unless a batch
         gave it a slot of the batch's."""
         if self._table is None:
-            rows = max(DatasetScheduler.KINEMATICS_ROWS, self.ex.tau + 1)
+            rows = max(DatasetScheduler.KINEMATICS_ROWS, self.ex.observed_offsets[-1] + 1)
             self._table = TargetTable(1, rows, len(self.bodies), self.nq, self.nv, self.nu, self.ex.actuation == "pd")
         return self._table
 
@@ -465,15 +466,15 @@ class ExecutorEnv:
         kin = self._target_kin_memo.get(key)
         if kin is None:
             kin = self.reference_kinematics(frame.qpos[None], frame.qvel[None])[0]
-            if len(self._target_kin_memo) > 2 * (self.ex.tau + 1):
+            if len(self._target_kin_memo) > 2 * (len(self.ex.observed_offsets) + 1):
                 self._target_kin_memo.pop(next(iter(self._target_kin_memo)))  # the oldest
             self._target_kin_memo[key] = kin
         return kin
 
     def target_kinematics(self) -> BodyKin:
-        """`BodyKin` `[tau + 1]` of the target frames 0..tau control steps from now: the
-        `DatasetScheduler`'s table rows, or each frame's kinematics (other schedulers)."""
-        offsets = range(self.ex.tau + 1)
+        """`BodyKin` `[1 + len(offsets)]` of the target frames now and `observed_offsets` control
+        steps from now: the `DatasetScheduler`'s table rows, or each frame's kinematics (other schedulers)."""
+        offsets = (0, *self.ex.observed_offsets)
         if self._tabled():
             rows = self.scheduler.kinematics_at(offsets)
             self._table.next_row[self._slot] = rows[1]
@@ -679,8 +680,8 @@ class Targets:
     """What a step reads of M environments' target frames: the tracked frame's (now: `com`
     `[M, 3]`, body positions `pos` `[M, B, 3]`, `rel` `[M, B - 1, 3]`
     (`BodyKin.relative_positions`), `qpos` `[M, nq]`, `qvel` `[M, nv]`) and the observed frames'
-    (1..tau control steps ahead: o(X~) `features` `[M, tau, F]`, root positions `root_pos`
-    `[M, tau, 3]` and rotations `root_rot` `[M, tau, 3, 3]`)."""
+    (`ExecutorConfig.observed_offsets`, K of them, control steps ahead: o(X~) `features`
+    `[M, K, F]`, root positions `root_pos` `[M, K, 3]` and rotations `root_rot` `[M, K, 3, 3]`)."""
 
     com: np.ndarray
     pos: np.ndarray
@@ -697,10 +698,10 @@ def target_rows(envs: Sequence[ExecutorEnv], slots: np.ndarray | None) -> Target
     these are their slots, and each is `_tabled`): each scheduler looks its rows up
     (`kinematics_at`), the rows one step ahead become the next PD targets' (`next_row`), and
     every array is one gather from the table. Else computed from each scheduler's frames."""
-    tau = envs[0].ex.tau
+    offsets = (0, *envs[0].ex.observed_offsets)
     if slots is not None:
         table = envs[0]._table
-        rows = np.array([env.scheduler.kinematics_at(range(tau + 1)) for env in envs])
+        rows = np.array([env.scheduler.kinematics_at(offsets) for env in envs])
         table.next_row[slots] = rows[:, 1]
         now = (slots, rows[:, 0])
         ahead = (slots[:, None], rows[:, 1:])

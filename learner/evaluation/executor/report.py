@@ -127,7 +127,7 @@ def describe(cfg) -> str:
     return (f"{ex.actuation}, {'per-term' if ex.termination == 'per_term' else ex.termination} termination"
             f"{watch if ex.termination == 'per_term' else ''} (alpha {ex.alpha:g}), {ex.clip_draws} clip draws{f' (adaptive, clip-k {cfg.sampler.clip_k:g})' if cfg.sampler.clip_k else ''}, {'reactive init' if ex.reactive_init else 'no reactive init'}"
             f"{f' ({100 * ex.on_frame_share:g}% of starts on the frame)' if ex.on_frame_share else ''}, "
-            f"tau {ex.tau}, {clips}")
+            f"{f'preview {list(ex.preview)}' if ex.preview else f'tau {ex.tau}'}, {clips}")
 
 
 def _f(x: Any, fmt: str = ".1f") -> str:

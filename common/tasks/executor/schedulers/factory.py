@@ -36,7 +36,7 @@ def make_scheduler(name: str, env: Any, **options: Any) -> Scheduler:
     if name not in SCHEDULERS:
         raise ValueError(f"scheduler {name!r} is not one of {', '.join(SCHEDULERS)}")
     ex = env.ex
-    frames = {"lookback": ex.rsis_frames[1] + 1, "lookahead": ex.tau + 1}
+    frames = {"lookback": ex.rsis_frames[1] + 1, "lookahead": ex.observed_offsets[-1] + 1}
     if name == "dataset":
         return _dataset(env, frames, **options)
     if name == "stitch":
@@ -51,7 +51,7 @@ def make_scheduler(name: str, env: Any, **options: Any) -> Scheduler:
 
     # NOTE: the playback delay covers the lookahead plus one step for the centred velocity, so
     # every frame the observation asks for is interpolated between received frames.
-    options.setdefault("delay_s", max(0.1, (ex.tau + 2) * env.dt))
+    options.setdefault("delay_s", max(0.1, (ex.observed_offsets[-1] + 2) * env.dt))
     return VideoScheduler(env.ref_model, env.dt, **options)
 
 

@@ -576,3 +576,23 @@ def test_action_rate_penalty_and_previous_action_in_the_observation():
     lo, hi = rw.reward_range(env.ex.reward_weights, w, "pd")
     assert lo == -w * 36.0 and hi == pytest.approx(1.0)
     assert rw.action_rate_penalties(np.array([[1.0, -1.0]]), np.array([[0.0, 1.0]]), 0.5)[0] == 0.5 * (1 + 4) / 2
+
+
+def test_preview_observes_the_frames_at_its_offsets():
+    """With `preview` 1 2 4 the observation holds the blocks of tau = 4's observation at those
+    offsets (the same state and frames), and a bad preview is refused naming the value."""
+    four = make_env(cfg_with(tau=4, reactive_init=False), seed=0)
+    preview = make_env(cfg_with(preview=(1, 2, 4), reactive_init=False), seed=0)
+    clip = four.scheduler.clip_ids[0]
+    block = (four.obs_dim - preview.obs_dim)  # one block: tau 4 has four, the preview three
+    head = four.obs_dim - 4 * block
+    for env in (four, preview):
+        env.reset(0, env.space.default_array, clip, 0.2)
+    for _ in range(3):
+        a, b = four.step(np.zeros(four.act_dim))[0], preview.step(np.zeros(preview.act_dim))[0]
+        blocks = a[head:].reshape(4, block)
+        assert np.array_equal(b[:head], a[:head])
+        assert np.array_equal(b[head:].reshape(3, block), blocks[[0, 1, 3]])
+    for bad in [(2, 3), (1, 1), (1, 3, 2), (1, 61)]:
+        with pytest.raises(ValueError, match="preview"):
+            cfg_with(preview=bad)
