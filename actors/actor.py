@@ -76,11 +76,9 @@ class RolloutActor:
     def endpoints(self) -> dict[str, str]:
         return self._endpoints
 
-    def _fetch_draws(self, n: int) -> tuple[np.ndarray, list[str]]:
+    def _fetch_draws(self, n: int) -> tuple[np.ndarray, list[str], list[float]]:
         reply = self.sampler.draw(n)
-        if isinstance(reply, tuple):
-            return reply
-        return reply.params, list(reply.clip_ids)
+        return reply.params, list(reply.clip_ids), list(reply.start_s)
 
     def _send(self, msg) -> bool:
         """Send, retrying while the learner applies backpressure; once stopping, one more try

@@ -16,8 +16,8 @@ from common.policy import GaussianPolicy, PolicyConfig, load_policy_tensors
 from common.tasks.base import TaskConfig
 from common.tasks.registry import make_batch_env
 
-DrawFn = Callable[[], tuple[np.ndarray, str | None]]
-"""Returns the next episode's parameter vector and clip id (or None)."""
+DrawFn = Callable[[], tuple[np.ndarray, str | None, float | None]]
+"""Returns the next episode's parameter vector, clip id (or None) and start time in s (or None)."""
 
 
 class RolloutWorker:
@@ -53,8 +53,8 @@ class RolloutWorker:
         self.policy_version = msg.policy_version
 
     def _reset_env(self, i: int) -> None:
-        params, clip_id = self.draw()
-        self._obs[i] = self.batch.reset_one(i, int(self.rng.integers(2**31)), params, clip_id)
+        params, clip_id, start_s = self.draw()
+        self._obs[i] = self.batch.reset_one(i, int(self.rng.integers(2**31)), params, clip_id, start_s)
         self._params[i] = params
         self._ep_return[i] = 0.0
         self._ep_length[i] = 0
@@ -120,8 +120,9 @@ class RolloutWorker:
             episode_returns=returns,
             episode_lengths=lengths,
             divergences=divergences,
-            segment_clips=[clip for clip, _ in segments],
-            segment_tracked=[int(tracked) for _, tracked in segments],
+            segment_clips=[clip for clip, _, _ in segments],
+            segment_tracked=[int(tracked) for _, tracked, _ in segments],
+            segment_times=[at for _, _, at in segments],
         )
         self.seq += 1
         return msg

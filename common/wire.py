@@ -63,6 +63,10 @@ MAX_ITEMS = 1 << 20
 """Default most entries of a list or dict field."""
 MAX_COUNT = 1 << 31
 """Largest count a message may carry (segment counts)."""
+MAX_CLIP_S = 1e6
+"""Largest clip time (s) a message may carry; the sampler checks each against its clip's length."""
+MAX_FAILURE_TIMES = 8192
+"""Most failure times one value report carries (the learner keeps the first ones of an iteration)."""
 MAX_DEPTH = 16
 """Deepest nesting of an `Any` field (a sampler state's meta is 2 deep)."""
 MAX_NDIM = 8
@@ -129,7 +133,7 @@ class UnrollMsg:
     """
 
     KIND: ClassVar[str] = "unroll"
-    VERSION: ClassVar[int] = 2
+    VERSION: ClassVar[int] = 3
     actor_id: int = field(metadata=rule(ge=0, le=MAX_ACTOR_ID))
     seq: int = field(metadata=rule(ge=0))
     """Per-actor sequence number, +1 per unroll; gaps mean lost unrolls."""
@@ -156,6 +160,9 @@ class UnrollMsg:
     """Clips of the training segments that ended inside this unroll (tasks that track clips)."""
     segment_tracked: list[int] = field(default_factory=list, metadata=rule(ge=0, le=1, length="segments", empty_ok=True))
     """1 for a segment tracked to its clip's end, 0 for one a termination ended."""
+    segment_times: list[float] = field(default_factory=list, metadata=rule(ge=0, le=MAX_CLIP_S, length="segments", empty_ok=True))
+    """Clip time (s) at which each segment ended: where an untracked one failed (the sampler's
+    time bins), its clip's length for a tracked one; empty from a sender that does not tell."""
 
 
 @dataclass(frozen=True)
@@ -209,10 +216,13 @@ class DrawReplyMsg:
     """`n` episode draws: task/shape parameter vectors and motion clip ids."""
 
     KIND: ClassVar[str] = "draw_reply"
-    VERSION: ClassVar[int] = 1
+    VERSION: ClassVar[int] = 2
     params: np.ndarray = field(metadata=rule(shape=("n", "n_params"), dtypes=F32))  # in the task's parameter order
     clip_ids: list[str] = field(default_factory=list, metadata=rule(length="n", empty_ok=True, max_len=MAX_KEY))
     """One clip id per draw, or empty when the task uses no motion clips."""
+    start_s: list[float] = field(default_factory=list, metadata=rule(ge=0, le=MAX_CLIP_S, length="n", empty_ok=True))
+    """One start time (s) in its clip per draw (the sampler's failure-weighted time bins), or
+    empty: the environment draws a uniform start."""
     buffer_generation: int = field(default=0, metadata=rule(ge=0))
     """How many MCMC refills have happened: lets a client see stale draws."""
 
@@ -222,7 +232,7 @@ class ValueReportMsg:
     """`(parameters, V(s))` pairs for the marginal value fit (Won & Lee 2019, Alg. 1)."""
 
     KIND: ClassVar[str] = "value_report"
-    VERSION: ClassVar[int] = 3
+    VERSION: ClassVar[int] = 4
     params: np.ndarray = field(metadata=rule(shape=("m", "n_params"), dtypes=F32))
     values: np.ndarray = field(metadata=rule(shape=("m",), dtypes=F32))
     report_id: str = field(default="", metadata=rule(max_len=128))
@@ -234,6 +244,12 @@ class ValueReportMsg:
     """Segments per clip since the last report."""
     clip_tracked: list[int] = field(default_factory=list, metadata=rule(ge=0, le=MAX_COUNT, length="k", empty_ok=True))
     """Of those, the segments tracked to the clip's end (the sampler checks tracked <= segments)."""
+    fail_clip_ids: list[str] = field(default_factory=list, metadata=rule(
+        length="f", empty_ok=True, max_len=MAX_KEY, max_items=MAX_FAILURE_TIMES))
+    """The clip of each failed segment since the last report (the sampler's time bins); empty: none."""
+    fail_times_s: list[float] = field(default_factory=list, metadata=rule(
+        ge=0, le=MAX_CLIP_S, length="f", empty_ok=True, max_items=MAX_FAILURE_TIMES))
+    """The clip time (s) each failed there (the sampler checks each is inside its clip)."""
 
 
 @dataclass(frozen=True)

@@ -17,6 +17,7 @@ from common.policy import PolicyConfig
 from common.tasks.base import TaskConfig
 from common.tasks.body_config import BodyConfig
 from common.tasks.executor.config import ExecutorConfig
+from common.tasks.registry import TASKS
 from common.tasks.shape.config import ImitateConfig
 from learner.ppo import PPOConfig
 from sampler.config import SamplerConfig
@@ -134,6 +135,9 @@ class RunConfig:
                 f"--ppo.minibatch {self.ppo.minibatch} exceeds --steps-per-iteration {self.steps_per_iteration}"
             )
         self.task.substeps  # noqa: B018 - validates sim_hz / control_hz
+        if self.sampler.time_bin_s > 0 and self.task.name in TASKS and not TASKS[self.task.name].durations:
+            raise ValueError(f"--sampler.time-bin-s {self.sampler.time_bin_s:g} needs clips with start times; task "
+                             f"{self.task.name!r} has none: give 0, or a task with clips (executor)")
         if self.sampler.device not in ("cpu", self.learner.device):
             raise ValueError(f"--sampler.device {self.sampler.device} is set from --learner.device ({self.learner.device}): "
                              "give --learner.device instead")

@@ -53,6 +53,9 @@ class Learner:
         self.counters: collections.Counter[str] = collections.Counter()
         self.clip_segments: dict[str, list[int]] = {}
         """Clip id -> [segments, tracked] since the last `take_clip_segments`."""
+        self.clip_failures: list[tuple[str, float]] = []
+        """(clip id, clip time in s) of each failed segment since the last `take_clip_failures`,
+        the first `wire.MAX_FAILURE_TIMES` of them."""
 
     def weights_msg(self) -> wire.WeightsMsg:
         return wire.WeightsMsg(policy_version=self.policy_version, tensors=policy_tensors(self.policy))
@@ -79,7 +82,10 @@ class Learner:
             self.recent_lengths.extend(u.episode_lengths)
             self.episodes += len(u.episode_returns)
             self.counters["divergences"] += u.divergences
-            for clip, tracked in zip(u.segment_clips, u.segment_tracked):
+            times = u.segment_times if len(u.segment_times) == len(u.segment_clips) else [None] * len(u.segment_clips)
+            for clip, tracked, at in zip(u.segment_clips, u.segment_tracked, times):
+                if not tracked and at is not None and len(self.clip_failures) < wire.MAX_FAILURE_TIMES:
+                    self.clip_failures.append((clip, float(at)))
                 if clip not in self.clip_segments and len(self.clip_segments) >= MAX_CLIPS_COUNTED:
                     continue
                 counts = self.clip_segments.setdefault(clip, [0, 0])
@@ -92,6 +98,15 @@ class Learner:
         ids = sorted(self.clip_segments)
         out = ids, [self.clip_segments[c][0] for c in ids], [self.clip_segments[c][1] for c in ids]
         self.clip_segments = {}
+        return out
+
+    def take_clip_failures(self) -> tuple[list[str], list[float]]:
+        """The failed segments recorded since the last call: (clip ids, clip times in s where each
+        failed), for the sampler's time bins (`sampler/time_bins.py`). NOTE: past
+        `wire.MAX_FAILURE_TIMES` in one iteration the later ones are dropped; an iteration of
+        8192 steps ends far fewer episodes."""
+        out = [c for c, _ in self.clip_failures], [t for _, t in self.clip_failures]
+        self.clip_failures = []
         return out
 
     def value_pairs(self, unrolls: list[wire.UnrollMsg], n: int) -> tuple[np.ndarray, np.ndarray]:

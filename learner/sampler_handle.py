@@ -10,7 +10,7 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -51,16 +51,16 @@ class SamplerHandle:
 
     @staticmethod
     def start(config: SamplerConfig, space: ParamSpace, clips: Sequence[tuple[str, str]], ctx,
-              keys: RunKeys | None = None) -> "SamplerHandle":
-        """Start the service (with the run's CURVE keys as the sampler holds them) and a client
-        that speaks as the learner."""
+              keys: RunKeys | None = None, durations: Mapping[str, float] | None = None) -> "SamplerHandle":
+        """Start the service (with the run's CURVE keys as the sampler holds them, and the clips'
+        lengths for start times) and a client that speaks as the learner."""
         service_keys = keys.for_sampler() if keys is not None else None
 
         def client(endpoint) -> SamplerClient:
             return SamplerClient(endpoint, timeout_s=LEARNER_TIMEOUT_S, retries=2, keys=keys, role=LEARNER)
 
         if ctx is None:
-            service, thread, stop_event = start_in_thread(config, space, clips, keys=service_keys)
+            service, thread, stop_event = start_in_thread(config, space, clips, keys=service_keys, durations=durations)
             endpoint = service.endpoint
             return SamplerHandle(endpoint, client(endpoint), config, space, clips, thread=thread, stop_event=stop_event)
         import ray  # lazy: heavy (ray), only in the Ray modes
@@ -69,7 +69,8 @@ class SamplerHandle:
         opts.pop("scheduling_strategy", None)
         if config.device == "cuda" or (config.device == "auto" and torch.cuda.is_available()):
             opts["num_gpus"] = 0.1  # NOTE: Ray hides the GPUs from an actor that asks for none
-        handle = ray.remote(SamplerActor).options(max_restarts=-1, **opts).remote(config, space, list(clips), service_keys)
+        remote = ray.remote(SamplerActor).options(max_restarts=-1, **opts)
+        handle = remote.remote(config, space, list(clips), service_keys, dict(durations or {}))
         endpoint = ray.get(handle.endpoint.remote(), timeout=120)
 
         def lookup() -> str:  # a restarted sampler binds a new port: ask it where, every reconnect
@@ -92,13 +93,18 @@ class SamplerHandle:
             return default
 
     def report_and_tick(self, params: np.ndarray, values: np.ndarray, iteration: int,
-                        clips: tuple[list[str], list[int], list[int]] = ([], [], [])) -> dict[str, float]:
-        """Report the value pairs and `clips` (the training segments per clip since the last call:
-        ids, segments, tracked; only clips the sampler draws are sent), then tick."""
+                        clips: tuple[list[str], list[int], list[int]] = ([], [], []),
+                        failures: tuple[list[str], list[float]] = ([], [])) -> dict[str, float]:
+        """Report the value pairs, `clips` (the training segments per clip since the last call:
+        ids, segments, tracked) and `failures` (clip ids and clip times of the failed segments,
+        sent only when the sampler keeps time bins), then tick. Only clips the sampler draws are
+        sent; the sampler checks every time against its clip."""
         known = {cid for cid, _ in self.clips}
         keep = [i for i, cid in enumerate(clips[0]) if cid in known]
         clips = tuple([part[i] for i in keep] for part in clips)
-        self._call("report", lambda: self.client.report(params, values, clips), None)
+        keep = [i for i, cid in enumerate(failures[0]) if cid in known] if self.config.time_bin_s > 0 else []
+        failures = tuple([part[i] for i in keep] for part in failures)
+        self._call("report", lambda: self.client.report(params, values, clips, failures), None)
         stats = self._call("tick", lambda: self.client.tick(iteration), {})
         restarted = False
         if stats:  # no answer says nothing about a restart

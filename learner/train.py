@@ -17,7 +17,7 @@ from typing import Callable, NoReturn
 import torch
 
 from common.curve_keys import RunKeys
-from common.tasks.registry import task_clips, task_space
+from common.tasks.registry import task_clip_durations, task_clips, task_space
 from learner import checkpoint, cluster
 from learner.actor_pool import RayActorPool, SerialActorPool
 from learner.collector import Collector
@@ -155,7 +155,9 @@ def _start_services(run: Run, host: str, resume_from) -> None:
         device=cfg.learner.device,
         port=cfg.port_base + 3 if cfg.port_base else cfg.sampler.port,
     )
-    run.sampler = SamplerHandle.start(sampler_cfg, task_space(cfg.task), task_clips(cfg.task), ctx, keys=run.keys)
+    durations = task_clip_durations(cfg.task) if cfg.sampler.time_bin_s > 0 else None
+    run.sampler = SamplerHandle.start(sampler_cfg, task_space(cfg.task), task_clips(cfg.task), ctx, keys=run.keys,
+                                      durations=durations)
     if resume_from is not None and resume_from[1].get("sampler"):
         run.sampler.saved_state = checkpoint.from_checkpointable(resume_from[1]["sampler"])
         run.sampler.client.set_state(run.sampler.saved_state)
@@ -186,7 +188,8 @@ def _iterate(run: Run, start_steps: int, start_time: float) -> dict[str, float] 
     run.transport.publish(learner.weights_msg())
     t2 = time.monotonic()
     params, values = learner.value_pairs(unrolls, cfg.value_pairs_per_iteration)
-    metrics.update(run.sampler.report_and_tick(params, values, learner.iteration, learner.take_clip_segments()))
+    metrics.update(run.sampler.report_and_tick(params, values, learner.iteration, learner.take_clip_segments(),
+                                               learner.take_clip_failures()))
     if cfg.vm_plot_every and learner.iteration % cfg.vm_plot_every == 0:
         run.sampler.plot(run.run_dir / "sampler_vm.png")
     run.health.check()

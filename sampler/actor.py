@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import threading
-from typing import Sequence
+from typing import Mapping, Sequence
 
 from common.curve_keys import RunKeys
 from common.params import ParamSpace
@@ -26,7 +26,7 @@ from sampler.service import SamplerService
 
 
 def start_in_thread(config: SamplerConfig, space: ParamSpace, clips: Sequence[tuple[str, str]] | None = None,
-                    address: str | None = None, keys: RunKeys | None = None,
+                    address: str | None = None, keys: RunKeys | None = None, durations: Mapping[str, float] | None = None,
                     ) -> tuple[SamplerService, threading.Thread, threading.Event]:
     """Bind the service here and serve it on a daemon thread. Stop with `stop_event.set()` then
     `thread.join()`; the thread closes the socket on its way out.
@@ -34,7 +34,7 @@ def start_in_thread(config: SamplerConfig, space: ParamSpace, clips: Sequence[tu
     NOTE: the socket is created on the calling thread and used only by the serving thread from
     then on; ZeroMQ allows moving a socket across threads behind a memory barrier, which
     `Thread.start` provides."""
-    service = SamplerService(config, space, clips, address=address, keys=keys)
+    service = SamplerService(config, space, clips, address=address, keys=keys, durations=durations)
     stop_event = threading.Event()
     thread = threading.Thread(target=service.serve, args=(stop_event,), name="sampler-service", daemon=True)
     thread.start()
@@ -48,12 +48,12 @@ class SamplerActor:
     clients on other nodes can reach; the default 127.0.0.1 serves this machine only."""
 
     def __init__(self, config: SamplerConfig, space: ParamSpace, clips: Sequence[tuple[str, str]] | None = None,
-                 keys: RunKeys | None = None):
+                 keys: RunKeys | None = None, durations: Mapping[str, float] | None = None):
         if config.host == "auto":
             import ray  # lazy: heavy (ray), only a Ray actor resolves "auto"; serial mode never needs ray
 
             config = dataclasses.replace(config, host=ray.util.get_node_ip_address())
-        self.service, self._thread, self._stop = start_in_thread(config, space, clips, keys=keys)
+        self.service, self._thread, self._stop = start_in_thread(config, space, clips, keys=keys, durations=durations)
 
     def endpoint(self) -> str:
         return self.service.endpoint

@@ -8,6 +8,7 @@ An `ErrorMsg` reply (bad input) raises `common.wire.WireError` carrying the serv
 from __future__ import annotations
 
 import secrets
+import dataclasses
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
@@ -28,6 +29,8 @@ class Draws:
     """n clip ids, or empty when the sampler has no clips."""
     buffer_generation: int
     """MCMC refills so far when these were drawn."""
+    start_s: list[float] = dataclasses.field(default_factory=list)
+    """n start times (s) in those clips, or empty: time bins off, the environment draws one."""
 
 
 class SamplerClient:
@@ -46,13 +49,16 @@ class SamplerClient:
     def draw(self, n: int) -> Draws:
         reply = self.rpc.call(wire.DrawRequestMsg(n=int(n), client_id=self.client_id), wire.DrawReplyMsg)
         return Draws(params=np.array(reply.params), clip_ids=list(reply.clip_ids),
-                     buffer_generation=int(reply.buffer_generation))
+                     buffer_generation=int(reply.buffer_generation), start_s=list(reply.start_s))
 
     def report(self, params: np.ndarray, values: np.ndarray,
-               clips: tuple[Sequence[str], Sequence[int], Sequence[int]] = ((), (), ())) -> None:
-        """Send (s_b `[m, d]`, V(s) `[m]`) pairs for the marginal value fit, and `clips`: the
+               clips: tuple[Sequence[str], Sequence[int], Sequence[int]] = ((), (), ()),
+               failures: tuple[Sequence[str], Sequence[float]] = ((), ())) -> str:
+        """Send (s_b `[m, d]`, V(s) `[m]`) pairs for the marginal value fit, `clips`: the
         training segments per clip since the last report, (ids, segments, tracked), for adaptive
-        clip sampling.
+        clip sampling, and `failures`: (clip ids, clip times in s) of the failed segments, for
+        the time bins (at most `wire.MAX_FAILURE_TIMES`). Returns the service's note (pairs
+        stored; failure times refused and why).
 
         Idempotent: the report carries an id unique to this call (this client's random nonce
         and a counter), and every retry of the call resends it, so the service stores the pairs
@@ -62,8 +68,9 @@ class SamplerClient:
                                   values=np.asarray(values, dtype=np.float32).reshape(-1),
                                   report_id=f"{self._nonce}-{self._reports}",
                                   clip_ids=[str(c) for c in clips[0]], clip_segments=[int(n) for n in clips[1]],
-                                  clip_tracked=[int(t) for t in clips[2]])
-        self.rpc.call(msg, wire.OkMsg)
+                                  clip_tracked=[int(t) for t in clips[2]],
+                                  fail_clip_ids=[str(c) for c in failures[0]], fail_times_s=[float(t) for t in failures[1]])
+        return self.rpc.call(msg, wire.OkMsg).info
 
     def tick(self, iteration: int) -> dict[str, float]:
         """Policy iteration `iteration` is done; returns the stats after the tick (a refill

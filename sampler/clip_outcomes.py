@@ -3,11 +3,18 @@
 Won & Lee 2019 (Sec. 4.2, METHOD.md A) draw body shapes from exp(-k Vm / |Vbar|): shapes the
 policy does badly on come up more. UniCon 2020's motion balancer (Sec. 5.1, Eq. 8; METHOD.md B)
 draws clips by their place in the class tree only, whatever the policy can already do. This
-joins the two: each clip's balancer probability is multiplied by exp(-k r_c), with r_c the
-share of the clip's recent training segments tracked to the clip's end, so a clip the policy
-always tracks is drawn e^k times less often than one it never tracks, and the class tree still
-sets the base (k = 0: the balancer as UniCon has it). PHC (Luo et al. 2023) mines its failed
-sequences in the same spirit ("hard negative mining").
+joins the two: each clip's balancer probability p_c (Eq. 8) is multiplied by a factor of r_c,
+the share of the clip's recent training segments tracked to the clip's end, and the class tree
+still sets the base. Two factors (`--sampler.clip-weighting`):
+
+- exp: exp(-k r_c). A clip the policy always tracks is drawn e^k times less often than one it
+  never tracks; k = 0 is the balancer as UniCon has it (the default). Measured: k = 3 moved the
+  draws too little to show in training.
+- failure: max(floor, 1 - r_c), the recent failure share itself, as PHC (Luo et al. 2023) mines
+  its failed sequences ("hard negative mining": sample in proportion to failure). A clip the
+  policy never tracks weighs 1, one it always tracks `floor`. Since the factors are at most 1,
+  every clip keeps at least floor x p_c after renormalizing, so every class of the tree keeps at
+  least floor x its Eq. 8 share: none drops out of training once it is learnt (and forgotten).
 
 A segment is the stretch of an episode on one clip: from the episode's start or a reschedule
 to the clip's end (tracked), or to the termination that ended it (not tracked). The actors
@@ -23,13 +30,22 @@ from typing import Any, Sequence
 import numpy as np
 
 
-class ClipOutcomes:
-    """Decayed per-clip segment counts and the draw factors exp(-k r_c) they give."""
+WEIGHTINGS = ("exp", "failure")
 
-    def __init__(self, clip_ids: Sequence[str], k: float, memory: float):
+
+class ClipOutcomes:
+    """Decayed per-clip segment counts and the draw factors they give (exp(-k r_c) or
+    max(floor, 1 - r_c))."""
+
+    def __init__(self, clip_ids: Sequence[str], k: float, memory: float, weighting: str = "exp", floor: float = 0.1):
+        if weighting not in WEIGHTINGS:
+            raise ValueError(f"clip weighting {weighting!r} is not one of {', '.join(WEIGHTINGS)}")
+        if not 0.0 < floor <= 1.0:
+            raise ValueError(f"clip floor {floor!r} is not allowed: give a number in (0, 1]")
         self.clip_ids = tuple(clip_ids)
         self.index = {c: i for i, c in enumerate(self.clip_ids)}
         self.k, self.memory = float(k), float(memory)
+        self.weighting, self.floor = weighting, float(floor)
         self.segments = np.zeros(len(self.clip_ids))
         self.tracked = np.zeros(len(self.clip_ids))
         self._pending_segments = np.zeros(len(self.clip_ids))
@@ -80,9 +96,23 @@ class ClipOutcomes:
         """r_c per clip, in `clip_ids` order: (tracked + 1) / (segments + 2)."""
         return (self.tracked + 1.0) / (self.segments + 2.0)
 
+    @property
+    def active(self) -> bool:
+        """Whether the factors reweight the draws (false for exp with k = 0: all ones)."""
+        return self.weighting == "failure" or self.k > 0
+
     def factors(self) -> np.ndarray:
-        """exp(-k r_c) per clip (all ones for k = 0)."""
+        """Per clip, in `clip_ids` order: exp(-k r_c) (all ones for k = 0), or max(floor, 1 - r_c)."""
+        if self.weighting == "failure":
+            return np.maximum(self.floor, 1.0 - self.tracked_rate)
         return np.exp(-self.k * self.tracked_rate)
+
+    @property
+    def success(self) -> np.ndarray:
+        """Per clip, the decayed share of segments tracked to the clip's end (NaN for a clip
+        never seen): what the metrics show, without Laplace's prior."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(self.segments > 0, self.tracked / np.where(self.segments > 0, self.segments, 1.0), np.nan)
 
     def stats(self) -> dict[str, float]:
         """segments_seen, rate_min/max (r_c) and, once segments were counted, tracked_pct."""

@@ -7,6 +7,9 @@ from typing import ClassVar, Literal
 
 from common.config_limits import PORT, Limit, above, at_least, between, check_limits, validated
 
+MIN_TIME_BIN_S = 0.05
+"""Narrowest time bin: a few control steps (finer bins only spread the same failures thinner)."""
+
 
 @dataclass(frozen=True)
 @validated
@@ -32,9 +35,31 @@ class SamplerConfig:
     """Adaptive clip sampling (`sampler/clip_outcomes.py`): the motion balancer's probability of
     each clip times exp(-clip_k r), r the share of its recent training segments tracked to its
     end; 0 = UniCon's balancer alone."""
+    clip_weighting: Literal["exp", "failure"] = "exp"
+    """How a clip's recent outcomes reweight its balancer probability (`sampler/clip_outcomes.py`):
+    exp = exp(-clip_k r) (clip_k 0: the balancer alone, the default); failure = max(clip_floor,
+    1 - r), the recent failure share with a floor, so every clip keeps at least clip_floor times
+    its class-tree share."""
+    clip_floor: float = 0.1
+    """Smallest factor of a clip under `clip_weighting failure` (a clip the policy always tracks
+    is still drawn at this fraction of its class-tree share; every class stays in play)."""
     clip_memory: float = 0.95
     """At each tick that brings new counts, the weight the clip counts so far keep against them
     (0.95: about the last 20 reported iterations count; a tick without a report forgets nothing)."""
+    time_bin_s: float = 0.0
+    """Failure-weighted start times (`sampler/time_bins.py`, BeyondMimic/mjlab adaptive sampling):
+    each clip cut into bins of this many seconds (0.25-0.5 s suits 1-5 s clips), starts drawn by
+    the recent failures in and after each bin; 0 = off, uniform starts drawn by the environment.
+    Needs a task whose clips have lengths (the executor) and episodes that begin where the draw
+    says (`--task.executor.at-clip-end stop` makes every episode's clip and start the sampler's)."""
+    time_kernel: int = 3
+    """Bins before a failure's own that it also raises (the look-back kernel), so starts land
+    before the failure, where the policy can still recover (mjlab: 2, of 1 s bins)."""
+    time_lambda: float = 0.8
+    """Decay of the look-back kernel per bin: bin b - j gets lambda^j of a failure at bin b (mjlab: 0.8)."""
+    time_uniform: float = 0.1
+    """Share of a clip's starts drawn uniformly over its time whatever the failures (mjlab: 0.1),
+    so no stretch of a clip is forgotten."""
     vbar_floor: float = 1e-3
     """Smallest |Vbar| used as the density's temperature: guards the division early in training."""
     vm_hidden: tuple[int, ...] = (64, 64)
@@ -68,7 +93,9 @@ class SamplerConfig:
 
     FLAG_PREFIX: ClassVar[str] = "sampler"
     LIMITS: ClassVar[dict[str, Limit]] = {
-        "k": at_least(0, False), "clip_k": between(0, 50), "clip_memory": between(0, 1, hi_open=True), "p_mcmc": at_least(1), "n_mcmc": at_least(1), "n_chains": at_least(1), "burn_in": at_least(0),
+        "k": at_least(0, False), "clip_k": between(0, 50), "clip_memory": between(0, 1, hi_open=True),
+        "clip_floor": between(0, 1, lo_open=True), "time_bin_s": between(0, 10), "time_kernel": between(0, 20, integer=True),
+        "time_lambda": between(0, 1), "time_uniform": between(0, 1, lo_open=True), "p_mcmc": at_least(1), "n_mcmc": at_least(1), "n_chains": at_least(1), "burn_in": at_least(0),
         "thin": at_least(1), "vbar_floor": above(0), "vm_hidden": at_least(1), "vm_lr": above(0),
         "vbar_rate": between(0, 1, lo_open=True), "vm_fit_steps": at_least(0), "vm_minibatch": at_least(1),
         "max_pending_pairs": at_least(1), "max_draw": at_least(1), "probe_points": at_least(1), "seed": at_least(0),
@@ -83,6 +110,11 @@ class SamplerConfig:
             raise ValueError(f"--sampler.vm-hidden = {self.vm_hidden!r}: give one or more layer sizes")
         if self.device not in ("cpu", "cuda", "auto"):
             raise ValueError(f"--sampler.device = {self.device!r}: give cpu, cuda or auto")
+        if self.clip_weighting not in ("exp", "failure"):
+            raise ValueError(f"--sampler.clip-weighting = {self.clip_weighting!r}: give exp or failure")
+        if 0 < self.time_bin_s < MIN_TIME_BIN_S:
+            raise ValueError(f"--sampler.time-bin-s = {self.time_bin_s!r} is not allowed: give 0 (off) or a bin "
+                             f"of at least {MIN_TIME_BIN_S} s")
 
     @property
     def mh_steps(self) -> int:

@@ -1,10 +1,13 @@
 """`SamplerService`: the `ShapeSampler` behind a ZeroMQ ROUTER (DESIGN.md "Data flows").
 
 Requests and their replies (messages of `common.wire`):
-    DrawRequestMsg   -> DrawReplyMsg     n draws from the buffer (+ clip ids)
-    ValueReportMsg   -> OkMsg            (params, V) pairs for the next Vm fit and training segments
-                                         per clip; a resend with the same `report_id` is stored once
-                                         (`reports/duplicates`)
+    DrawRequestMsg   -> DrawReplyMsg     n draws from the buffer (+ clip ids, + start times with
+                                         time bins on)
+    ValueReportMsg   -> OkMsg            (params, V) pairs for the next Vm fit, training segments
+                                         per clip and failure times; a resend with the same
+                                         `report_id` is stored once (`reports/duplicates`); a bad
+                                         failure time is refused alone, counted and named in the
+                                         reply's `info`
     TickMsg          -> StatsReplyMsg    fit Vm, maybe refill; stats after the tick (a repeated
                                          iteration refits nothing and refills at most once)
     StatsRequestMsg  -> StatsReplyMsg
@@ -27,7 +30,7 @@ import copy
 import logging
 import threading
 import time
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import zmq
@@ -103,13 +106,13 @@ class SamplerService:
 
     def __init__(self, config: SamplerConfig, space: ParamSpace,
                  clips: Sequence[tuple[str, str]] | None = None, address: str | None = None,
-                 keys: RunKeys | None = None):
-        """`address` overrides the config's host/port (e.g. `tcp://127.0.0.1:5555` to restart
+                 keys: RunKeys | None = None, durations: Mapping[str, float] | None = None):
+        """`durations`: each clip's length in s, for start times (`ShapeSampler`). `address` overrides the config's host/port (e.g. `tcp://127.0.0.1:5555` to restart
         a service where its clients already look). `keys`: the run's CURVE keys as the sampler
         holds them (`RunKeys.for_sampler`): only this run's clients connect, and only the
         learner may change the sampler's state (`LEARNER_ONLY`)."""
         self.config = config
-        self.sampler = ShapeSampler(config, space, clips)
+        self.sampler = ShapeSampler(config, space, clips, durations)
         self.reports: collections.OrderedDict[str, int] = collections.OrderedDict()
         """The `report_id`s of the last REPORT_IDS_KEPT stored reports and their pair counts."""
         self.duplicate_reports = 0
@@ -133,20 +136,23 @@ class SamplerService:
     def _dispatch(self, msg: Any) -> Any:
         s = self.sampler
         if isinstance(msg, wire.DrawRequestMsg):
-            params, clips = s.draw(msg.n)
-            return wire.DrawReplyMsg(params=params.astype(np.float32), clip_ids=clips,
+            params, clips, starts = s.draw_episodes(msg.n)
+            return wire.DrawReplyMsg(params=params.astype(np.float32), clip_ids=clips, start_s=starts,
                                      buffer_generation=s.generation)
         if isinstance(msg, wire.ValueReportMsg):
             if msg.report_id and msg.report_id in self.reports:
                 # A retry whose first try was stored (the reply was lost): idempotent, like a tick.
                 self.duplicate_reports += 1
                 return wire.OkMsg(info=f"report {msg.report_id} already stored ({self.reports[msg.report_id]} pairs)")
-            m = s.report(msg.params, msg.values, (msg.clip_ids, msg.clip_segments, msg.clip_tracked))
+            m = s.report(msg.params, msg.values, (msg.clip_ids, msg.clip_segments, msg.clip_tracked),
+                         (msg.fail_clip_ids, msg.fail_times_s))
             if msg.report_id:
                 self.reports[msg.report_id] = m
                 while len(self.reports) > REPORT_IDS_KEPT:
                     self.reports.popitem(last=False)
-            return wire.OkMsg(info=f"stored {m} pairs")
+            refused = s.refused_last
+            return wire.OkMsg(info=f"stored {m} pairs" + (f"; refused {len(refused)} failure time(s), the first: {refused[0]}"
+                                                          if refused else ""))
         if isinstance(msg, wire.TickMsg):
             s.tick(msg.iteration)
             return wire.StatsReplyMsg(stats=self.stats())

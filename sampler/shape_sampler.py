@@ -13,7 +13,10 @@ Algorithm 1 mapped onto the calls:
 Clips: a `ClipManager` (`common/motion/clip_manager.py`) draws them by the motion balancer;
 `report` (or `report_clips`) adds the training segments' outcomes per clip and each tick
 reweights the manager by them (adaptive clip sampling, `sampler/clip_outcomes.py`; off for
-clip_k = 0).
+clip_weighting exp with clip_k = 0). With time bins (`time_bin_s` > 0, `sampler/time_bins.py`)
+`draw_episodes` also draws each episode's start time in its clip, through the same manager,
+weighted by where the reported failures fell. `sampler/clip_metrics.py` turns the draws and
+outcomes into per-class and per-clip metrics.
 
 A tick is idempotent for a repeated iteration number (a client's retry after a lost reply): the
 pairs are already consumed and the refill is keyed on the iteration, not on the tick count.
@@ -23,7 +26,7 @@ from __future__ import annotations
 
 import json
 import time
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -32,10 +35,12 @@ from common import device as devices
 from common.params import ParamError, ParamSpace
 from common.motion.balancer import MotionBalancer
 from common.motion.clip_manager import ClipManager
+from sampler.clip_metrics import ClipMetrics
 from sampler.clip_outcomes import ClipOutcomes
 from sampler.config import SamplerConfig
 from sampler.marginal_value import MarginalValue
 from sampler.mcmc import metropolis_hastings
+from sampler.time_bins import END_MARGIN_S, TimeBins
 
 STATE_VERSION = 1
 
@@ -44,16 +49,33 @@ class ShapeSampler:
     """Adaptive sampler of task/shape parameters and motion clips; see the module docstring."""
 
     def __init__(self, config: SamplerConfig, space: ParamSpace,
-                 clips: Sequence[tuple[str, str]] | None = None):
+                 clips: Sequence[tuple[str, str]] | None = None, durations: Mapping[str, float] | None = None):
+        """`clips`: (clip id, label) pairs to draw; `durations`: {clip id: length in s} of each,
+        needed for start times (`config.time_bin_s` > 0; `common.tasks.registry.task_clip_durations`)."""
         self.config = config
         self.space = space
         self.rng = np.random.default_rng(config.seed)
         self.vm = MarginalValue(space.low_array, space.high_array, config.vm_hidden, config.vm_lr,
                                 config.vbar_rate, config.seed, config.probe_points, devices.resolve(config.device))
-        self.clips = ClipManager(clips) if clips else None
+        self.time_bins: TimeBins | None = None
+        """Failure-weighted start times (None: time bins off, or no clips)."""
+        if clips and config.time_bin_s > 0:
+            missing = [c for c, _ in clips if c not in (durations or {})]
+            if missing:
+                raise ValueError(f"--sampler.time-bin-s {config.time_bin_s:g} needs every clip's length; none for "
+                                 f"{missing[:3]} ({len(missing)} clips): time bins work with the executor's clips only")
+            lengths = {c: float(durations[c]) for c, _ in clips}
+            self.time_bins = TimeBins(lengths, config.time_bin_s, config.time_kernel, config.time_lambda,
+                                      config.time_uniform, config.clip_memory)
+        known = {c: float(d) for c, d in (durations or {}).items()}
+        self.clips = ClipManager(clips, duration_s=known.__getitem__ if known else None) if clips else None
         """The episodes' clip draws (None: the task uses no clips)."""
-        self.clip_outcomes = (ClipOutcomes(self.clips.clip_ids, config.clip_k, config.clip_memory)
+        self.clip_outcomes = (ClipOutcomes(self.clips.clip_ids, config.clip_k, config.clip_memory,
+                                           config.clip_weighting, config.clip_floor)
                               if self.clips else None)
+        self.clip_metrics = ClipMetrics(clips, config.clip_memory) if clips else None
+        self.refused_last: list[str] = []
+        """Why the last report's refused failure times were refused (one line each)."""
         self._pending_params: list[np.ndarray] = []
         self._pending_values: list[np.ndarray] = []
         self.generation = 0
@@ -89,17 +111,37 @@ class ShapeSampler:
             self._cursor += take
             filled += take
         clips = self.clips.draw_clips(self.rng, n) if self.clips else []
+        if self.clip_metrics is not None:
+            self.clip_metrics.count(clips)
         self.draws_served += n
         return self.buffer[rows].copy(), clips
 
+    def draw_starts(self, clip_ids: Sequence[str]) -> list[float]:
+        """A start time (s) in each of these clips, from its failure-weighted time bins through
+        the clip manager; empty (no random numbers drawn) when time bins are off: the
+        environment then draws a uniform start itself."""
+        tb = self.time_bins
+        if tb is None:
+            return []
+        return [self.clips.draw_start(self.rng, c, END_MARGIN_S, tb.weights(c), tb.bin_s) for c in clip_ids]
+
+    def draw_episodes(self, n: int) -> tuple[np.ndarray, list[str], list[float]]:
+        """`draw(n)` and `draw_starts` of its clips: what a draw request is answered with."""
+        params, clips = self.draw(n)
+        return params, clips, self.draw_starts(clips)
+
     def report(self, params: np.ndarray, values: np.ndarray,
-               clips: tuple[Sequence[str], Sequence[int], Sequence[int]] = ((), (), ())) -> int:
-        """Store pairs (s_b `[m, d]`, V(s) `[m]`) for the next fit, and `clips`, the training
-        segments per clip (ids, segments, tracked; `report_clips`); returns m.
+               clips: tuple[Sequence[str], Sequence[int], Sequence[int]] = ((), (), ()),
+               failures: tuple[Sequence[str], Sequence[float]] = ((), ())) -> int:
+        """Store pairs (s_b `[m, d]`, V(s) `[m]`) for the next fit, `clips`, the training
+        segments per clip (ids, segments, tracked; `report_clips`), and `failures`, the clip and
+        clip time (s) of each failed segment (`report_failures`); returns m.
 
         Raises `ParamError` (a ValueError) naming the first out-of-range or NaN entry, or a
-        ValueError for the clip counts; everything is checked before anything is stored."""
+        ValueError for the clip counts; everything is checked before anything is stored. A bad
+        failure time is refused alone (`refused_last` says why) and the rest is stored."""
         clip_rows = self._clip_rows(*clips)
+        fail_rows, refusals = self._fail_rows(*failures)
         params = np.asarray(params, dtype=np.float64)
         values = np.asarray(values, dtype=np.float64)
         if params.ndim != 2 or params.shape[1] != self.space.dim:
@@ -116,6 +158,7 @@ class ShapeSampler:
         self._trim_pending()
         if self.clip_outcomes is not None:
             self.clip_outcomes.add(clip_rows)
+        self._add_failures(fail_rows, refusals)
         return params.shape[0]
 
     def _clip_rows(self, clip_ids: Sequence[str], segments: Sequence[int], tracked: Sequence[int]) -> list[tuple[int, int, int]]:
@@ -125,6 +168,25 @@ class ShapeSampler:
                 raise ValueError(f"clip outcomes for {list(clip_ids)[:3]}: this sampler draws no clips")
             return []
         return self.clip_outcomes.check(clip_ids, segments, tracked)
+
+    def _fail_rows(self, clip_ids: Sequence[str], times: Sequence[float]) -> tuple[list[int], list[str]]:
+        """`TimeBins.check` of these failure times; a sampler without time bins takes none."""
+        if self.time_bins is None:
+            if len(clip_ids) or len(times):
+                raise ValueError(f"{max(len(clip_ids), len(times))} failure times: this sampler keeps no time bins "
+                                 "(--sampler.time-bin-s 0); send none")
+            return [], []
+        return self.time_bins.check(clip_ids, times)
+
+    def _add_failures(self, rows: list[int], refusals: list[str]) -> int:
+        self.refused_last = list(refusals)
+        return self.time_bins.add(rows, refusals) if self.time_bins is not None else 0
+
+    def report_failures(self, clip_ids: Sequence[str], times: Sequence[float]) -> int:
+        """The clip and clip time (s) of failed training segments, for the next tick's start
+        weights; returns how many were counted. Each bad entry is refused alone (`refused_last`);
+        ValueError only for lists of different lengths, or for any entry when time bins are off."""
+        return self._add_failures(*self._fail_rows(clip_ids, times))
 
     def report_clips(self, clip_ids: Sequence[str], segments: Sequence[int], tracked: Sequence[int]) -> int:
         """Training segments per clip and how many were tracked to the clip's end, for the next
@@ -162,8 +224,11 @@ class ShapeSampler:
             self._pending_values.clear()
         if self.clip_outcomes is not None:
             self.clip_outcomes.update()
-            if self.clip_outcomes.k > 0:
+            if self.clip_outcomes.active:
                 self.clips.reweight(self.clip_outcomes.factors())
+            self.clip_metrics.update()
+        if self.time_bins is not None:
+            self.time_bins.update()
         if iteration < self.last_refill_iteration:  # the learner went back (resumed without our state)
             self.last_refill_iteration = iteration
         if iteration - self.last_refill_iteration >= self.config.p_mcmc:
@@ -206,6 +271,10 @@ class ShapeSampler:
         clips/segments_seen, clips/tracked_pct, clips/rate_min, clips/rate_max
                                      training segments reported, the recent share tracked to the
                                      clip's end (all clips), its lowest and highest clip (r_c)
+        clips/class/<class>/starts_pct, .../success_pct, clips/clip/<id>/..., clips/success_pct/*
+                                     each class's and clip's share of starts and of segments
+                                     tracked (`sampler/clip_metrics.py`)
+        clips/time/fails_seen, refused, entropy, top_share   the time bins (`sampler/time_bins.py`)
         """
         out: dict[str, float] = {"iteration": float(self.last_tick), "buffer/generation": float(self.generation)}
         mean, std = self.buffer.mean(axis=0), self.buffer.std(axis=0)
@@ -225,6 +294,9 @@ class ShapeSampler:
             p = self.clips.draw_probabilities
             out.update({"clips/count": float(len(p)), "clips/p_min": float(p.min()), "clips/p_max": float(p.max())})
             out.update(self.clip_outcomes.stats())
+            out.update(self.clip_metrics.stats(self.clip_outcomes.segments, self.clip_outcomes.tracked))
+        if self.time_bins is not None:
+            out.update(self.time_bins.stats())
         return out
 
     def state_dict(self) -> dict[str, Any]:
@@ -247,6 +319,11 @@ class ShapeSampler:
         if self.clip_outcomes is not None:
             meta["clips"], clip_arrays = self.clip_outcomes.state()
             arrays.update(clip_arrays)
+            meta["clip_metrics"], metric_arrays = self.clip_metrics.state()
+            arrays.update(metric_arrays)
+        if self.time_bins is not None:
+            meta["time_bins"], time_arrays = self.time_bins.state()
+            arrays.update(time_arrays)
         return {"meta": meta, "arrays": arrays}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -278,8 +355,11 @@ class ShapeSampler:
         self.rng.bit_generator.state = json.loads(meta["rng"])
         if self.clip_outcomes is not None:  # a state from before adaptive clip sampling has none: every clip unseen
             self.clip_outcomes.load_state(meta.get("clips"), arrays)
-            if self.clip_outcomes.k > 0:
+            if self.clip_outcomes.active:
                 self.clips.reweight(self.clip_outcomes.factors())
+            self.clip_metrics.load_state(meta.get("clip_metrics"), arrays)
+        if self.time_bins is not None:  # a state without time bins: every clip starts without failures
+            self.time_bins.load_state(meta.get("time_bins"), arrays)
         if box_changed:
             self.refill()
             self.last_refill_iteration = self.last_tick

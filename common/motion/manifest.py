@@ -68,6 +68,12 @@ class ClipEntry:
         return tuple(self.label.split("/"))
 
     @property
+    def duration_s(self) -> float:
+        """(frames - 1) / fps, as `Clip.duration_s` of the clip once loaded (to a fraction of a
+        millisecond: an import may resample); 0 for a clip without a rate."""
+        return (self.frames - 1) / self.fps if self.fps > 0 else 0.0
+
+    @property
     def split_frames(self) -> float:
         """The clip's length in frames at SPLIT_FPS (its duration x 60)."""
         return self.frames / self.fps * SPLIT_FPS if self.fps > 0 else float(self.frames)

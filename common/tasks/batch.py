@@ -25,8 +25,11 @@ class BatchEnv(Protocol):
     act_dim: int
     space: ParamSpace
 
-    def reset_one(self, i: int, seed: int | None, params: np.ndarray, clip_id: str | None = None) -> np.ndarray:
-        """Start environment i's next episode (`Env.reset`); its first observation `[obs_dim]`."""
+    def reset_one(self, i: int, seed: int | None, params: np.ndarray, clip_id: str | None = None,
+                  start_s: float | None = None) -> np.ndarray:
+        """Start environment i's next episode (`Env.reset`) on `clip_id` from `start_s` (s; None:
+        the environment draws one; tasks without start times take only None); its first
+        observation `[obs_dim]`."""
         ...
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
@@ -35,9 +38,9 @@ class BatchEnv(Protocol):
         truncated `[N]` and one info dict per environment (`Env.step`'s)."""
         ...
 
-    def drain_segments(self) -> list[tuple[str, bool]]:
-        """The clip segments every environment ended since the last call (`ExecutorEnv.drain_segments`;
-        empty for tasks without clips)."""
+    def drain_segments(self) -> list[tuple[str, bool, float]]:
+        """The clip segments every environment ended since the last call, (clip id, tracked, clip
+        time at the end) (`ExecutorEnv.drain_segments`; empty for tasks without clips)."""
         ...
 
 
@@ -52,8 +55,12 @@ class LoopBatch:
         first = self.envs[0]
         self.obs_dim, self.act_dim, self.space = first.obs_dim, first.act_dim, first.space
 
-    def reset_one(self, i: int, seed: int | None, params: np.ndarray, clip_id: str | None = None) -> np.ndarray:
-        obs, _ = self.envs[i].reset(seed, params, clip_id)
+    def reset_one(self, i: int, seed: int | None, params: np.ndarray, clip_id: str | None = None,
+                  start_s: float | None = None) -> np.ndarray:
+        if start_s is None:
+            obs, _ = self.envs[i].reset(seed, params, clip_id)
+        else:
+            obs, _ = self.envs[i].reset(seed, params, clip_id, start_s)
         return obs
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
@@ -67,5 +74,5 @@ class LoopBatch:
             infos.append(info)
         return obs, rewards, terminated, truncated, infos
 
-    def drain_segments(self) -> list[tuple[str, bool]]:
+    def drain_segments(self) -> list[tuple[str, bool, float]]:
         return [seg for env in self.envs if hasattr(env, "drain_segments") for seg in env.drain_segments()]

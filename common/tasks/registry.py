@@ -29,6 +29,9 @@ class TaskEntry:
     batch: str = ""
     """The task's batched environment class as `module:Class` (`common.tasks.batch.BatchEnv`,
     built as `Class(cfg, seeds)`); empty: a `LoopBatch` of single environments."""
+    durations: str = ""
+    """`module:function` giving {clip id: length in s} of the task's clips from its config
+    (`task_clip_durations`); empty: the task takes no start times from the sampler."""
 
 
 TASKS: dict[str, TaskEntry] = {
@@ -37,7 +40,8 @@ TASKS: dict[str, TaskEntry] = {
                        batch="common.tasks.shape.batch:ShapeBatch")
        for name in ("lower_biped", "biped", "quadruped", "fish", "manta")},
     "executor": TaskEntry("common.tasks.executor.env:ExecutorEnv", "executor", EXECUTOR_COMMANDS,
-                          batch="common.tasks.executor.batch:ExecutorBatch"),
+                          batch="common.tasks.executor.batch:ExecutorBatch",
+                          durations="common.tasks.executor.clip_durations:executor_clip_durations"),
 }
 
 
@@ -84,3 +88,13 @@ def task_check(cfg: TaskConfig) -> None:
 def task_clips(cfg: TaskConfig) -> list[tuple[str, str]]:
     """`(clip_id, label)` pairs the task imitates (empty for tasks without motion clips)."""
     return list(_env_class(cfg.name).clips(cfg))
+
+
+def task_clip_durations(cfg: TaskConfig) -> dict[str, float]:
+    """{clip id: length in s} of the clips the task draws, for the sampler's start times
+    (`--sampler.time-bin-s`); empty for a task whose episodes take no start time from a draw."""
+    path = task_entry(cfg.name).durations
+    if not path:
+        return {}
+    module, fn = path.split(":")
+    return dict(getattr(importlib.import_module(module), fn)(cfg))

@@ -45,7 +45,7 @@ from actors.draws import DrawCache
 from actors.rollout import RolloutWorker
 from common import wire
 from common.config_limits import Limit, at_least, check_limits, validated
-from common.tasks.registry import task_clips, task_space
+from common.tasks.registry import task_clip_durations, task_clips, task_space
 from learner.cli_options import parse_options
 from learner.config import RunConfig
 from learner.presets import PRESETS, check_presets
@@ -112,9 +112,11 @@ def pure_simulation(cfg: RunConfig, rec: Round, warmup_iterations: int) -> dict[
     torch.set_num_threads(cfg.actors.torch_threads)
     space = task_space(cfg.task)
     # The service's sampler as `learner.train` configures it; actor 0's seeds (`actor_pool`).
-    sampler = ShapeSampler(dataclasses.replace(cfg.sampler, seed=cfg.sampler.seed + cfg.seed), space, task_clips(cfg.task))
+    durations = task_clip_durations(cfg.task) if cfg.sampler.time_bin_s > 0 else None
+    sampler = ShapeSampler(dataclasses.replace(cfg.sampler, seed=cfg.sampler.seed + cfg.seed), space, task_clips(cfg.task),
+                           durations)
     actor_seed = cfg.seed + 1000
-    draws = DrawCache(sampler.draw, space, cfg.actors.draw_batch, seed=actor_seed + 1)
+    draws = DrawCache(sampler.draw_episodes, space, cfg.actors.draw_batch, seed=actor_seed + 1)
     worker = RolloutWorker(0, cfg.task, cfg.policy, cfg.actors, draws, seed=actor_seed)
 
     def load(i: int) -> None:

@@ -16,7 +16,7 @@ def _worker(envs: int = 3, T: int = 20) -> RolloutWorker:
     space = task_space(TaskConfig())
     rng = np.random.default_rng(0)
     return RolloutWorker(0, TaskConfig(), PolicyConfig(hidden=(16,)), ActorConfig(envs_per_actor=envs, unroll_length=T),
-                         lambda: (space.uniform(rng, 1)[0], None), seed=0)
+                         lambda: (space.uniform(rng, 1)[0], None, None), seed=0)
 
 
 def test_unroll_shapes_and_episode_statistics():

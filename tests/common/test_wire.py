@@ -24,7 +24,7 @@ def _unroll(T=4, N=3, obs_dim=5, act_dim=2, n_params=2) -> wire.UnrollMsg:
         terminated=rng.random((T, N)) < 0.2, truncated=rng.random((T, N)) < 0.2,
         params=rng.normal(size=(T, N, n_params)).astype(np.float32),
         episode_returns=[1.5, -2.0], episode_lengths=[10, 20], divergences=1, sampler_outages=2,
-        segment_clips=["walk", "run", "walk"], segment_tracked=[1, 0, 1],
+        segment_clips=["walk", "run", "walk"], segment_tracked=[1, 0, 1], segment_times=[1.25, 0.4, 1.25],
     )
 
 
@@ -34,9 +34,10 @@ EXAMPLES = [
     wire.WeightsRequestMsg(actor_id=1, have_version=-1),
     wire.HeartbeatMsg(actor_id=2, seq=9, env_steps=100),
     wire.DrawRequestMsg(n=16, client_id=3),
-    wire.DrawReplyMsg(params=np.zeros((2, 3), np.float32), clip_ids=["walk", "run"], buffer_generation=4),
+    wire.DrawReplyMsg(params=np.zeros((2, 3), np.float32), clip_ids=["walk", "run"], start_s=[0.5, 0.0], buffer_generation=4),
     wire.ValueReportMsg(params=np.zeros((5, 2), np.float32), values=np.arange(5, dtype=np.float32),
-                        clip_ids=["walk", "run"], clip_segments=[4, 2], clip_tracked=[3, 0]),
+                        clip_ids=["walk", "run"], clip_segments=[4, 2], clip_tracked=[3, 0],
+                        fail_clip_ids=["run", "run", "walk"], fail_times_s=[0.7, 1, 0.25]),
     wire.TickMsg(iteration=12),
     wire.StatsRequestMsg(),
     wire.StatsReplyMsg(stats={"vm/min": 1.0}),
@@ -203,6 +204,18 @@ HB = wire.HeartbeatMsg(actor_id=2, seq=9, env_steps=100)
         (EXAMPLES[6], _set_field("clip_segments", [4, -1]), "out_of_range"),
         (EXAMPLES[6], _set_field("clip_tracked", [3]), "bad_shape"),
         (EXAMPLES[6], _set_field("clip_segments", [4, 2**40]), "out_of_range"),
+        # start and failure times (the sampler's time bins): one per draw or failure, finite, >= 0
+        (EXAMPLES[5], _set_field("start_s", [0.5]), "bad_shape"),
+        (EXAMPLES[5], _set_field("start_s", [0.5, -0.1]), "out_of_range"),
+        (EXAMPLES[5], _set_field("start_s", [0.5, float("nan")]), "nonfinite"),
+        (EXAMPLES[5], _set_field("start_s", [0.5, "0"]), "bad_type"),
+        (EXAMPLES[6], _set_field("fail_times_s", [0.7, 1.0]), "bad_shape"),
+        (EXAMPLES[6], _set_field("fail_times_s", [0.7, float("inf"), 0.2]), "nonfinite"),
+        (EXAMPLES[6], _set_field("fail_times_s", [0.7, True, 0.2]), "bad_type"),
+        (EXAMPLES[6], _set_field("fail_times_s", [0.7, 1e7, 0.2]), "out_of_range"),
+        (EXAMPLES[6], _set_field("fail_clip_ids", ["run"] * (wire.MAX_FAILURE_TIMES + 1)), "out_of_range"),
+        (U, _set_field("segment_times", [1.0, -2.0, 1.0]), "out_of_range"),
+        (U, _set_field("segment_times", [1.0]), "bad_shape"),
     ],
 )
 def test_every_field_is_checked_against_its_declaration(msg, edit, kind):

@@ -100,3 +100,48 @@ def test_a_sampler_without_clips_refuses_clip_outcomes():
     assert s.report_clips([], [], []) == 0
     with pytest.raises(ValueError, match="draws no clips"):
         s.report_clips(["easy"], [1], [1])
+
+
+def test_failure_weighting_moves_draws_to_failing_clips_and_the_floor_keeps_every_class():
+    """`--sampler.clip-weighting failure`: factor max(floor, 1 - r_c). The clip never tracked
+    takes the most draws; the clips always tracked keep at least floor x their class-tree share,
+    so class a, learnt whole, stays in play."""
+    o = ClipOutcomes(["easy", "hard", "other"], k=0.0, memory=0.9, weighting="failure", floor=0.1)
+    assert o.active  # k does not matter here
+    np.testing.assert_allclose(o.factors(), 0.5)  # unseen: Laplace's 1/2
+    o.report(["easy", "hard", "other"], [200, 200, 200], [200, 0, 100])
+    o.update()
+    np.testing.assert_allclose(o.factors(), [0.1, 1 - 1 / 202, 1 - 101 / 202])  # easy at the floor
+    s = ShapeSampler(dataclasses.replace(FAST, clip_weighting="failure", clip_floor=0.1, clip_k=0.0), SPACE, CLIPS)
+    base = s.balancer.probabilities.copy()
+    s.report_clips(["easy", "hard", "other"], [200, 200, 200], [200, 0, 100])
+    s.tick(1)
+    p = s.balancer.draw_probabilities
+    assert p[1] > p[2] > p[0] and p[1] > base[1]  # hard gains, easy loses
+    assert (p >= 0.1 * base - 1e-12).all()  # the floor: every clip keeps a tenth of its share
+    _, clips = s.draw(20000)
+    freq = np.array([clips.count(c) for c in ("easy", "hard", "other")]) / 20000
+    np.testing.assert_allclose(freq, p, atol=0.015)
+    assert freq[0] > 0.02  # class a (easy alone) still drawn
+    stats = s.stats()
+    assert stats["clips/class/root/a/success_pct"] == pytest.approx(100.0)
+    assert stats["clips/class/root/b/x/success_pct"] == pytest.approx(0.0)
+    assert stats["clips/clip/hard/starts_pct"] == pytest.approx(100 * freq[1], abs=1e-9)
+    # every clip always tracked: all at the floor, back to the class tree's own shares
+    s.report_clips(["easy", "hard", "other"], [10**6] * 3, [10**6] * 3)
+    s.tick(2)
+    np.testing.assert_allclose(s.balancer.draw_probabilities, base, atol=1e-6)
+
+
+@pytest.mark.parametrize("kw, message", [(dict(weighting="worst"), "not one of exp, failure"),
+                                         (dict(weighting="failure", floor=0.0), r"give a number in \(0, 1\]")])
+def test_bad_weighting_options_are_refused(kw, message):
+    with pytest.raises(ValueError, match=message):
+        ClipOutcomes(["easy"], k=0.0, memory=0.9, **kw)
+
+
+def test_config_refuses_a_bad_weighting_floor_or_bin():
+    for bad, message in [(dict(clip_weighting="worst"), "give exp or failure"), (dict(clip_floor=0.0), "clip-floor"),
+                         (dict(time_bin_s=0.01), "give 0 \\(off\\) or a bin"), (dict(time_uniform=0.0), "time-uniform")]:
+        with pytest.raises(ValueError, match=message):
+            dataclasses.replace(SamplerConfig(), **bad)

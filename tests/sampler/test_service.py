@@ -1,5 +1,6 @@
 """The sampler service over real ZeroMQ sockets on 127.0.0.1: requests, bad input, restarts."""
 
+import dataclasses
 import threading
 import time
 
@@ -15,6 +16,7 @@ from sampler.actor import start_in_thread
 from common.motion.balancer import load_clip_labels
 from sampler.client import SamplerClient
 from sampler.config import SamplerConfig
+from sampler.time_bins import END_MARGIN_S
 
 SPACE = ParamSpace(names=("leg", "arm"), low=(0.5, 0.5), high=(2.0, 1.5))
 CFG = SamplerConfig(p_mcmc=2, n_mcmc=200, n_chains=16, burn_in=20, vm_fit_steps=20, probe_points=128, seed=3)
@@ -170,9 +172,9 @@ def test_a_resent_report_is_stored_once(service, monkeypatch):
     real_report = service.sampler.report
     calls = []
 
-    def slow_first_report(params, values, clips=((), (), ())):
+    def slow_first_report(params, values, clips=((), (), ()), failures=((), ())):
         calls.append(len(values))
-        m = real_report(params, values, clips)
+        m = real_report(params, values, clips, failures)
         if len(calls) == 1:
             time.sleep(0.8)  # longer than the client's timeout: its first try times out
         return m
@@ -255,3 +257,48 @@ def test_clip_outcomes_travel_with_the_value_report_and_a_bad_one_stores_nothing
         assert stats["requests/rejected/invalid"] == 2
     finally:
         client.close()
+
+
+def test_start_times_and_failure_times_over_the_socket():
+    """Time bins over real ZeroMQ: draws carry one start per clip inside the clip; a report's
+    failure times reach the bins at the tick, a bad one is refused alone (named in the reply and
+    counted), a non-finite one is refused by the wire with the whole report; the bins travel in
+    the state; a sampler without time bins refuses failure times."""
+    clips = [("long", "root/a/x"), ("other", "root/b")]
+    durations = {"long": 4.0, "other": 2.0}
+    cfg = dataclasses.replace(CFG, time_bin_s=0.5, clip_memory=0.5)
+    svc, thread, stop = start_in_thread(cfg, SPACE, clips, durations=durations)
+    client = SamplerClient(svc.endpoint, timeout_s=5.0)
+    try:
+        d = client.draw(40)
+        assert len(d.start_s) == 40 and len(d.clip_ids) == 40
+        assert all(0.0 <= t <= durations[c] - END_MARGIN_S for c, t in zip(d.clip_ids, d.start_s))
+        info = client.report(d.params[:2], np.ones(2), failures=(["long", "long", "other"], [3.2, 9.0, 0.1]))
+        assert "stored 2 pairs; refused 1 failure time(s), the first: failure time 9.0 s in clip 'long'" in info
+        with pytest.raises(wire.WireError, match="nonfinite|expected a finite float"):
+            client.report(d.params[:2], np.ones(2), failures=(["long"], [float("nan")]))
+        stats = client.tick(1)
+        assert stats["clips/time/fails_seen"] == 2 and stats["clips/time/refused"] == 1
+        assert stats["requests/rejected/nonfinite"] == 1 and stats["vm/pairs_seen"] == 2
+        assert stats["clips/time/entropy"] < 1.0  # no longer uniform
+        more = client.draw(400)
+        starts = [t for c, t in zip(more.clip_ids, more.start_s) if c == "long"]
+        assert np.mean([1.5 <= t < 3.5 for t in starts]) > 0.8  # before the failure at 3.2 s
+        state = client.get_state()
+        assert state["meta"]["time_bins"]["bins"] == [8, 4]
+        client.set_state(state)
+        assert client.stats()["clips/time/fails_seen"] == 2
+    finally:
+        client.close()
+        stop.set()
+        thread.join(timeout=5)
+    plain, thread, stop = start_in_thread(CFG, SPACE, clips)
+    client = SamplerClient(plain.endpoint, timeout_s=5.0)
+    try:
+        assert client.draw(3).start_s == []  # time bins off: the environment draws the start
+        with pytest.raises(wire.WireError, match="keeps no time bins"):
+            client.report(np.full((1, 2), 1.0), np.ones(1), failures=(["long"], [1.0]))
+    finally:
+        client.close()
+        stop.set()
+        thread.join(timeout=5)

@@ -55,12 +55,13 @@ class ExecutorBatch:
                 env._table, env._slot, env._slots = table, i, slots
         self.obs_dim, self.act_dim, self.space = first.obs_dim, first.act_dim, first.space
 
-    def reset_one(self, i: int, seed: int | None, params: np.ndarray, clip_id: str | None = None) -> np.ndarray:
-        obs, _ = self.envs[i].reset(seed, params, clip_id)
+    def reset_one(self, i: int, seed: int | None, params: np.ndarray, clip_id: str | None = None,
+                  start_s: float | None = None) -> np.ndarray:
+        obs, _ = self.envs[i].reset(seed, params, clip_id, start_s)
         return obs
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[dict[str, Any]]]:
         return step_envs(self.envs, actions)
 
-    def drain_segments(self) -> list[tuple[str, bool]]:
+    def drain_segments(self) -> list[tuple[str, bool, float]]:
         return [seg for env in self.envs for seg in env.drain_segments()]

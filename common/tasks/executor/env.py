@@ -294,7 +294,7 @@ class ExecutorEnv:
         (`ExecutorBatch`); it behaves as one built alone."""
         self.cfg, self.ex = cfg, cfg.executor
         self.rng = np.random.default_rng(seed)
-        self._segments: list[tuple[str, bool]] = []  # ended clip segments not yet drained
+        self._segments: list[tuple[str, bool, float]] = []  # ended clip segments not yet drained
         self._segment_clip = ""
         self.space = self.param_space(cfg)
         self.dt = 1.0 / cfg.control_hz
@@ -561,17 +561,25 @@ class ExecutorEnv:
         return obs[0], float(rewards[0]), bool(terminated[0]), bool(truncated[0]), infos[0]
 
     def _end_segment(self, tracked: bool) -> None:
+        """End the current clip segment: kept with the clip time it ended at, read from the
+        scheduler for a failure (its time now, inside the clip) and the clip's length for a
+        tracked one (the scheduler may already be on the next clip)."""
         if self._segment_clip:
             if len(self._segments) >= MAX_UNDRAINED_SEGMENTS:  # nobody drains them (evaluation, play)
                 del self._segments[0]
-            self._segments.append((self._segment_clip, tracked))
+            motion = self._motions.get(self._segment_clip)
+            length = float(motion.duration_s) if motion is not None else math.inf
+            at = length if tracked and motion is not None else float(self.scheduler.status().get("clip_time_s", 0.0))
+            self._segments.append((self._segment_clip, tracked, min(max(at, 0.0), length) if math.isfinite(at) else 0.0))
             self._segment_clip = ""
 
-    def drain_segments(self) -> list[tuple[str, bool]]:
-        """The clip segments ended since the last call, (clip id, tracked to the clip's end),
-        for adaptive clip sampling (`sampler/clip_outcomes.py`): a segment runs from a start or
-        a reschedule to the clip's end, or to the termination (or divergence) that cut it; an
-        episode cut by its time limit leaves its segment uncounted."""
+    def drain_segments(self) -> list[tuple[str, bool, float]]:
+        """The clip segments ended since the last call, (clip id, tracked to the clip's end,
+        clip time in s where it ended), for adaptive clip sampling (`sampler/clip_outcomes.py`)
+        and the sampler's time bins (`sampler/time_bins.py`, which read where untracked ones
+        failed): a segment runs from a start or a reschedule to the clip's end, or to the
+        termination (or divergence) that cut it; an episode cut by its time limit leaves its
+        segment uncounted."""
         out, self._segments = self._segments, []
         return out
 

@@ -111,13 +111,17 @@ class ShapeBatch:
         self.com_head[i] = len(env.com_hist) % self.history
         self.ctrl_ref[i] = env.ref_joints[1]
 
-    def reset_one(self, i: int, seed: int | None, params: np.ndarray, clip_id: str | None = None) -> np.ndarray:
-        """Environment i's `ImitateEnv.reset`: a new body shape, its reference and the start state."""
+    def reset_one(self, i: int, seed: int | None, params: np.ndarray, clip_id: str | None = None,
+                  start_s: float | None = None) -> np.ndarray:
+        """Environment i's `ImitateEnv.reset`: a new body shape, its reference and the start state
+        (`start_s` must be None: the shape tasks draw their own phase)."""
+        if start_s is not None:
+            raise ValueError(f"start_s = {start_s!r}: the shape tasks take no start time (give None)")
         obs, _ = self.envs[i].reset(seed, params, clip_id)
         self._pull(i)
         return obs
 
-    def drain_segments(self) -> list[tuple[str, bool]]:
+    def drain_segments(self) -> list[tuple[str, bool, float]]:
         """No clip segments: each shape task plays one looping clip."""
         return []
 

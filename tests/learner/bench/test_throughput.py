@@ -41,10 +41,10 @@ def test_pure_phase_replays_the_runs_policies_and_sampler_states(preset, monkeyp
     class Recording(bench_throughput.RolloutWorker):
         def __init__(self, actor_id, task, policy_cfg, actor_cfg, draw, seed=0):
             def recorded():
-                params, clip = draw()
+                params, clip, start = draw()
                 seen["params"].append(np.asarray(params))
                 seen["clips"].append(clip)
-                return params, clip
+                return params, clip, start
 
             super().__init__(actor_id, task, policy_cfg, actor_cfg, recorded, seed)
 

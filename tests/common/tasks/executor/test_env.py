@@ -409,8 +409,11 @@ def test_clip_segments_end_tracked_at_a_reschedule_and_not_at_a_termination():
             break
     assert term
     segments = env.drain_segments()
-    assert segments[0] == (first, True) and segments[-1] == (env.scheduler.clip_id, False), segments
-    assert all(tracked for _, tracked in segments[:-1])
+    assert segments[0] == (first, True, duration), segments  # a tracked segment ends at its clip's end
+    failed = env.scheduler.status()
+    assert segments[-1] == (failed["clip_id"], False, pytest.approx(failed["clip_time_s"])), segments
+    assert 0 < segments[-1][2] <= failed["clip_duration_s"]  # where it failed, inside the clip (time bins)
+    assert all(tracked for _, tracked, _ in segments[:-1])
     assert env.drain_segments() == []
 
 
