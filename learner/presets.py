@@ -150,6 +150,7 @@ def _track_preset() -> RunConfig:
         policy=PolicyConfig(hidden=(256, 256, 256), init_log_std=TRACK_LOG_STD, learn_log_std=False),
         ppo=PPOConfig(gamma=0.99, epochs=5, minibatch=4096, lr=1e-4, lr_schedule="adaptive", kl_target=0.01,
                       proximal_anchor=True),
+        sampler=dataclasses.replace(base.sampler, clip_weighting="failure", clip_floor=0.1, time_bin_s=0.5),
     )
 
 
