@@ -44,11 +44,13 @@ class RolloutActor:
         cfg: ActorConfig,
         endpoints: dict[str, str],
         seed: int = 0,
-        sampler_handle=None,
+        sampler_name: str = "",
         keys: RunKeys | None = None,
     ):
-        """`sampler_handle`: the sampler's Ray actor handle, if any; its endpoint is looked up
-        through it again on every reconnect, so a restarted sampler on a new port is found.
+        """`sampler_name`: the Ray name of the sampler's actor, if it runs as one; its endpoint is
+        looked up through it again on every reconnect, so a restarted sampler on a new port is
+        found. A name, not the actor handle: a handle among the constructor arguments of an actor
+        Ray may restart makes Ray log an error line on every run (ray-project/ray#53727).
         `keys`: the run's CURVE keys as actors hold them (`RunKeys.for_actors`); every socket of
         this actor authenticates with them."""
         configure_torch(cfg.torch_threads)
@@ -59,7 +61,7 @@ class RolloutActor:
         self.sampler = None
         fetch = None
         if endpoints.get("sampler"):
-            lookup = endpoints["sampler"] if sampler_handle is None else _endpoint_lookup(sampler_handle)
+            lookup = _endpoint_lookup(sampler_name) if sampler_name else endpoints["sampler"]
             self.sampler = SamplerClient(lookup, timeout_s=cfg.sampler_timeout_s, retries=cfg.sampler_retries, keys=keys)
             fetch = self._fetch_draws
         self.draws = DrawCache(fetch, task_space(task), cfg.draw_batch, seed=seed + 1)
@@ -171,13 +173,13 @@ class RolloutActor:
             self.sampler.close()
 
 
-def _endpoint_lookup(handle):
-    """An endpoint callable that asks the sampler's Ray actor where it listens now."""
+def _endpoint_lookup(name: str):
+    """An endpoint callable that asks the sampler's Ray actor, found by its name, where it listens now."""
 
     def lookup() -> str:
         import ray  # lazy: heavy (ray), only when the sampler runs as a Ray actor
 
-        return ray.get(handle.endpoint.remote(), timeout=10)
+        return ray.get(ray.get_actor(name).endpoint.remote(), timeout=10)
 
     return lookup
 

@@ -49,9 +49,9 @@ class SerialActorPool:
 
 
 class RayActorPool:
-    def __init__(self, cfg: RunConfig, endpoints: dict[str, str], ctx, sampler_handle=None,
+    def __init__(self, cfg: RunConfig, endpoints: dict[str, str], ctx, sampler_name: str = "",
                  keys: RunKeys | None = None) -> None:
-        """`keys`: the run's CURVE keys as actors hold them (`RunKeys.for_actors`), handed to each
+        """`sampler_name`: the sampler actor's Ray name (`SamplerHandle.ray_name`). `keys`: the run's CURVE keys as actors hold them (`RunKeys.for_actors`), handed to each
         actor through Ray (the cluster's own token authentication guards that channel)."""
         import ray  # lazy: heavy (ray), only in the Ray modes
 
@@ -60,7 +60,7 @@ class RayActorPool:
         opts = cluster.actor_options(ctx, cluster.ROLLOUT_RESOURCE, 1.0, cfg.actors.num_cpus)
         self.handles = [
             remote_cls.options(max_concurrency=2, max_restarts=cfg.actor_max_restarts, **opts).remote(
-                i, cfg.task, cfg.policy, cfg.actors, endpoints, cfg.seed + 1000 * (i + 1), sampler_handle, keys
+                i, cfg.task, cfg.policy, cfg.actors, endpoints, cfg.seed + 1000 * (i + 1), sampler_name, keys
             )
             for i in range(cfg.actors.num_actors)
         ]

@@ -82,6 +82,24 @@ def _use_token_auth_if_available() -> None:
         pass
 
 
+def _token_auth_for_local_instance() -> None:
+    """A private local instance uses token authentication (Ray >= 2.5x's default), with the mode
+    set explicitly: left unset, Ray turns it on itself and says so in a WARNING on every run
+    ("Token authentication is enabled ... Set RAY_AUTH_MODE=disabled to opt out"), a notice the
+    user cannot act on. A mode the user set (RAY_AUTH_MODE) is left as it is, so is an older Ray.
+
+    NOTE: the mode is read when Ray's config is initialized (at import); Ray's own default path
+    sets it and re-initializes the config the same way, at the same moment of `ray.init`."""
+    if os.environ.get("RAY_AUTH_MODE"):
+        return
+    try:
+        from ray._raylet import Config  # lazy: heavy (ray), only when starting a private instance; absent in older Ray
+    except ImportError:
+        return
+    os.environ["RAY_AUTH_MODE"] = "token"
+    Config.initialize("")
+
+
 def connect(mode: str, explicit_address: str, num_actors: int, actor_cpus: float, learner_replicas: int = 1) -> RayContext:
     """Attach to a running cluster or start a private local Ray instance, per `mode`."""
     import ray  # lazy: heavy (ray), only in the Ray modes
@@ -102,6 +120,7 @@ def connect(mode: str, explicit_address: str, num_actors: int, actor_cpus: float
     else:
         cpus = max(2, int(num_actors * actor_cpus + 0.999))
         print(f"[morphmimic] no Ray cluster to attach to: starting a private local Ray instance ({cpus} CPUs)", flush=True)
+        _token_auth_for_local_instance()
         ray.init(
             address="local",
             num_cpus=cpus,

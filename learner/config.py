@@ -106,7 +106,10 @@ class RunConfig:
     """An actor that sent neither unroll nor heartbeat for this long is counted as stalled and
     excluded until it sends again."""
     quiet: bool = False
-    """Write progress only to log.txt and TensorBoard, not the console."""
+    """Write progress only to log.txt and the scalar logger, not the console."""
+    logger: Literal["tensorboard", "wandb"] = "tensorboard"
+    """Where every metric goes as a scalar: tensorboard (`<run>/tb/`), or wandb (`<run>/wandb/`;
+    the optional extra `pip install -e ".[wandb]"`; offline unless WANDB_MODE is set)."""
     curve: bool = True
     """Authenticate and encrypt every ZeroMQ socket with CURVE, with keys made for this run and
     handed to actors and sampler through Ray: a peer without them is refused and counted

@@ -17,10 +17,12 @@ import sys
 from common.tasks.registry import task_check, task_clips, task_space
 from learner.cli_options import parse_options, scan_flag, short_help
 from learner.config import RunConfig
+from learner.expected_returns import first_run_line
 from learner.presets import PRESETS
+from learner.scalar_sinks import check_logger
 
 DEFAULT_PRESET = "reach"
-SHORT_HELP = ["total_env_steps", "name", "mode", "resume", "runs_dir", "ray_address", "seed", "quiet"]
+SHORT_HELP = ["total_env_steps", "name", "mode", "resume", "runs_dir", "ray_address", "seed", "quiet", "logger"]
 """The `RunConfig` fields `--help` shows (with --preset); `--help-all` shows them all."""
 
 
@@ -61,6 +63,7 @@ def parse(argv: list[str]) -> RunConfig:
             map_axes(space, cfg.sampler.plot_params)
         task_clips(cfg.task)
         task_check(cfg.task)
+        check_logger(cfg.logger)  # W&B chosen but not installed: one line naming the extra, before anything starts
         return cfg
     except ValueError as exc:  # range checks and the task's checks
         print(f"python -m learner.main: invalid configuration: {exc}", file=sys.stderr)
@@ -69,7 +72,16 @@ def parse(argv: list[str]) -> RunConfig:
 
 def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    cfg = parse(list(sys.argv[1:] if argv is None else argv))
+    argv = list(sys.argv[1:] if argv is None else argv)
+    cfg = parse(argv)
+    from learner import run_status  # lazy: start-up time of --help (torch, to read the run's checkpoint)
+
+    finished = run_status.finished_line(cfg)
+    if finished:  # nothing to train: said in one line, and Ray is never started
+        print(finished, flush=True)
+        return 0
+    if run_status.is_new(cfg) and not cfg.quiet:
+        print(first_run_line(scan_flag(argv, "--preset", DEFAULT_PRESET)[0]), flush=True)
     from learner.train import train  # lazy: start-up time of --help (tensorboard, the actors, the sampler)
 
     return train(cfg)

@@ -1,5 +1,6 @@
 """Per-iteration progress: one block on the console, the same lines in `log.txt`, and every
-metric as a TensorBoard scalar (namespaces `charts/`, `losses/`, `stats/`, `wire/`, `sampler/`)."""
+metric as a scalar of the chosen `--logger` backend (`learner.scalar_sinks`: TensorBoard by
+default, or W&B; namespaces `charts/`, `losses/`, `stats/`, `wire/`, `sampler/`)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import math
 import sys
 from pathlib import Path
 
-from torch.utils.tensorboard import SummaryWriter
+from learner.scalar_sinks import ScalarSink, TensorBoardSink, WandbSink
 
 
 def _fmt_duration(seconds: float) -> str:
@@ -20,10 +21,14 @@ def _fmt_duration(seconds: float) -> str:
 
 
 class RunLog:
-    def __init__(self, run_dir: Path, quiet: bool = False):
+    def __init__(self, run_dir: Path, quiet: bool = False, sink: ScalarSink | None = None):
+        """`sink`: where the scalars go (`learner.scalar_sinks.open_sink`); None: TensorBoard."""
         self.file = open(run_dir / "log.txt", "a", buffering=1)
-        self.tb = SummaryWriter(log_dir=str(run_dir / "tb"))
+        self.sink = sink if sink is not None else TensorBoardSink(run_dir)
         self.quiet = quiet
+        if isinstance(self.sink, WandbSink):
+            self.line(f"[morphmimic] W&B run ({self.sink.mode}) in {self.sink.dir}"
+                      + (f"; upload it with `wandb sync {self.sink.dir}`" if self.sink.mode == "offline" else ""))
 
     def line(self, text: str) -> None:
         self.file.write(text + "\n")
@@ -31,9 +36,8 @@ class RunLog:
             print(text, file=sys.stdout, flush=True)
 
     def iteration(self, it: int, env_steps: int, budget: int, steps_per_s: float, eta_s: float, metrics: dict[str, float]) -> None:
-        for name, value in metrics.items():
-            if isinstance(value, (int, float)) and math.isfinite(value):
-                self.tb.add_scalar(name, value, env_steps)
+        self.sink.scalars({name: value for name, value in metrics.items()
+                           if isinstance(value, (int, float)) and math.isfinite(value)}, env_steps)
         get = lambda k: metrics.get(k, float("nan"))  # noqa: E731
         self.line(
             f"iter {it:5d} | steps {env_steps:>10,d}/{budget:,d} | {steps_per_s:7.0f} steps/s | "
@@ -55,5 +59,5 @@ class RunLog:
             self.line("           sampler " + " ".join(f"{k[8:]} {sampler[k]:.4g}" for k in keys))
 
     def close(self) -> None:
-        self.tb.close()
+        self.sink.close()
         self.file.close()

@@ -8,6 +8,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+import uuid
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -40,6 +41,9 @@ class SamplerHandle:
     space: ParamSpace
     clips: Sequence[tuple[str, str]]
     ray_handle: Any = None
+    ray_name: str = ""
+    """The sampler actor's Ray name (unique per run): rollout actors look it up by name, never
+    holding its handle among their constructor arguments (`actors.actor`)."""
     thread: threading.Thread | None = None
     stop_event: threading.Event | None = None
     failures: int = 0
@@ -69,14 +73,15 @@ class SamplerHandle:
         opts.pop("scheduling_strategy", None)
         if config.device == "cuda" or (config.device == "auto" and torch.cuda.is_available()):
             opts["num_gpus"] = 0.1  # NOTE: Ray hides the GPUs from an actor that asks for none
-        remote = ray.remote(SamplerActor).options(max_restarts=-1, **opts)
+        name = f"morphmimic-sampler-{uuid.uuid4().hex[:12]}"
+        remote = ray.remote(SamplerActor).options(name=name, max_restarts=-1, **opts)
         handle = remote.remote(config, space, list(clips), service_keys, dict(durations or {}))
         endpoint = ray.get(handle.endpoint.remote(), timeout=120)
 
         def lookup() -> str:  # a restarted sampler binds a new port: ask it where, every reconnect
             return ray.get(handle.endpoint.remote(), timeout=10)
 
-        return SamplerHandle(endpoint, client(lookup), config, space, clips, ray_handle=handle)
+        return SamplerHandle(endpoint, client(lookup), config, space, clips, ray_handle=handle, ray_name=name)
 
     def _call(self, what: str, fn, default):
         """Call the sampler; on failure count it and, for an outage, skip further calls for

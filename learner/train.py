@@ -26,6 +26,7 @@ from learner.health import HealthMonitor
 from learner.learner import Learner
 from learner.replicas import ReplicaGroup
 from learner.run_log import RunLog
+from learner.scalar_sinks import open_sink
 from learner.sampler_handle import SamplerHandle
 from learner.signals import StopFlag
 from learner.transport import LearnerTransport
@@ -119,7 +120,7 @@ def _start(cfg: RunConfig) -> Run:
     learner = resumed_learner(cfg, resume_from)
     run_dir.mkdir(parents=True, exist_ok=True)  # NOTE: only once the configuration and checkpoint are known good
     (run_dir / "config.json").write_text(cfg.to_json() + "\n")
-    out = RunLog(run_dir, quiet=cfg.quiet)
+    out = RunLog(run_dir, quiet=cfg.quiet, sink=open_sink(cfg.logger, run_dir, cfg.name, cfg))
     if resume_from is not None:
         out.line(f"[morphmimic] resumed {resume_from[0]} at iteration {learner.iteration}, {learner.env_steps:,d} env steps")
     stop = StopFlag()
@@ -171,7 +172,7 @@ def _start_services(run: Run, host: str, resume_from) -> None:
     if ctx is None:
         run.pool = SerialActorPool(cfg, endpoints, keys=actor_keys)
     else:
-        run.pool = RayActorPool(cfg, endpoints, ctx, sampler_handle=run.sampler.ray_handle, keys=actor_keys)
+        run.pool = RayActorPool(cfg, endpoints, ctx, sampler_name=run.sampler.ray_name, keys=actor_keys)
     run.health = HealthMonitor(transport.last_seen, cfg.stall_timeout_s, out.line)
     run.collector = Collector(transport, run.pool, cfg, run.stop, ctx is None, out)
 

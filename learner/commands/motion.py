@@ -33,6 +33,7 @@ from common.motion.root_height import ROOT_HEIGHT_RULES
 from common.tasks.executor.config import ExecutorConfig
 from learner.cli import dispatch
 from learner.cli_options import parse_options
+from learner.progress import Progress
 
 
 RootHeightRule = Literal["contact_set", "foot_tracks", "contact_smooth"]
@@ -186,15 +187,17 @@ def cmd_import(args) -> int:
     if not jobs:
         print("morphmimic motion import: give source files, --all or --procedural", file=sys.stderr)
         return 2
-    for clip_id, make in jobs:
-        clip = make()
-        path = clip.save(out_dir / f"{clip_id}.npz")
-        try:
-            path = path.relative_to(Path.cwd())
-        except ValueError:
-            pass
-        print(f"{path}: {clip.num_frames} frames at {clip.fps:.1f} Hz ({clip.duration_s:.2f} s), "
-              f"{len(clip.joint_names)} joints for {clip.character!r}, label {clip.label}")
+    with Progress("[motion import]", len(jobs), "clips") as bar:
+        for clip_id, make in jobs:
+            clip = make()
+            path = clip.save(out_dir / f"{clip_id}.npz")
+            try:
+                path = path.relative_to(Path.cwd())
+            except ValueError:
+                pass
+            bar.write(f"{path}: {clip.num_frames} frames at {clip.fps:.1f} Hz ({clip.duration_s:.2f} s), "
+                      f"{len(clip.joint_names)} joints for {clip.character!r}, label {clip.label}")
+            bar.update()
     return 0
 
 

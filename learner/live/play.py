@@ -32,6 +32,7 @@ from common.config_limits import PORT, Limit, above, at_least, check_limits, val
 from common.tasks.executor.schedulers.factory import make_scheduler
 from learner.cli_options import parse_options, value_list
 from learner.live.session import LiveSession, Scheduler, SessionOptions, number_pair, shape_pair, video_status
+from learner.progress import Progress
 
 PROG = "morphmimic play"
 
@@ -153,11 +154,13 @@ def render_video(session: LiveSession, path: Path, seconds: float, speed: float,
                                 ffmpeg_log_level="error", output_params=["-pix_fmt", "yuv420p"])
     try:
         sim_t = 0.0
-        for f in range(frames):
-            while sim_t < f * speed / fps - 1e-9:
-                session.step()
-                sim_t += dt
-            writer.append_data(renderer.render(session.env, session.root_body, swimmer=session.is_swimmer))
+        with Progress(f"[play] {path.name}", frames, "frames") as bar:
+            for f in range(frames):
+                while sim_t < f * speed / fps - 1e-9:
+                    session.step()
+                    sim_t += dt
+                writer.append_data(renderer.render(session.env, session.root_body, swimmer=session.is_swimmer))
+                bar.update()
     finally:
         writer.close()
         renderer.close()

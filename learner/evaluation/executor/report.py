@@ -44,6 +44,7 @@ from learner import checkpoint
 from learner.evaluation.shape import plots as eval_plots
 
 from learner.evaluation.executor import evaluate as xe
+from learner.progress import Progress
 
 ZERO_NOTE = ("**zero actions, not the policy** (`--zero-action`: for PD targets the humanoid's PD on the reference "
              "itself, for torques no torque; the baseline that shows what the policy adds)")
@@ -265,14 +266,10 @@ def evaluate_checkpoint(loaded: checkpoint.Loaded, clips: list[xe.EvalClip], sta
     in the checkpoint's task instead of its policy (no strips: they film the policy). `settings`:
     the `--set` pairs already applied to `loaded` (`xe.with_settings`), recorded in the files."""
     out.mkdir(parents=True, exist_ok=True)
-    t0, last = time.monotonic(), [0.0]
-
-    def progress(done: int, total: int) -> None:
-        if time.monotonic() - last[0] > 10 or done == total:
-            last[0] = time.monotonic()
-            print(f"[{log}] {loaded.name}: {done}/{total} episodes, {time.monotonic() - t0:.0f} s", flush=True)
-
-    records = xe.evaluate(loaded, clips, starts, workers, progress=progress, zero_action=zero_action)
+    t0 = time.monotonic()
+    with Progress(f"[{log}] {loaded.name}", len(clips) * starts, "episodes") as bar:
+        records = xe.evaluate(loaded, clips, starts, workers, progress=lambda done, total: bar.set(done, total),
+                              zero_action=zero_action)
     summary = xe.summarize(records, clips)
     summary["zero_action_ceiling"] = xe.zero_action_ceiling(loaded, clips, starts, workers, records)
     meta = {"checkpoint": str(loaded.path), "name": loaded.name, "task": "executor",

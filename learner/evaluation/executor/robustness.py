@@ -58,6 +58,7 @@ from learner import checkpoint
 from learner.evaluation.executor import evaluate as xe
 from learner.evaluation.executor import robustness_report
 from learner.evaluation.executor.report import Clips, Settings, select_clips
+from learner.progress import Progress
 from common.characters.mass import scale_body_mass, set_body_mass
 from common.tasks.executor.env import PROJECTILES
 from common.tasks.registry import make_env, task_space
@@ -190,15 +191,15 @@ def projectile_problem(loaded: checkpoint.Loaded, clip: xe.EvalClip) -> str | No
 
 
 def executor_rows(loaded: checkpoint.Loaded, clips: list[xe.EvalClip], starts: int, workers: int, rows: list[Row],
-                  log=print) -> tuple[dict, list[dict]]:
+                  log=None) -> tuple[dict, list[dict]]:
     """(the unperturbed row, one result per row), the same (clip, start) episodes in each."""
     base_env = xe.make_eval_env(loaded, clips)
     durations = xe.clip_durations(base_env, clips)
     hz = loaded.cfg.task.control_hz
 
-    def measure(name: str, pert: xe.Perturbation) -> dict[str, Any]:
+    def measure(name: str, pert: xe.Perturbation, progress=None) -> dict[str, Any]:
         t0 = time.monotonic()
-        records = xe.evaluate(loaded, clips, starts, workers, pert, durations=durations)
+        records = xe.evaluate(loaded, clips, starts, workers, pert, progress=progress, durations=durations)
         s = xe.stats(records)
         return {"row": name, "stats": s, "performance": s["performance"], "success_pct": s["success_pct"],
                 "mean_return": s["mean_return"], "seconds": time.monotonic() - t0,
@@ -283,7 +284,7 @@ def _shape_work(job: tuple[int, np.ndarray, int]) -> dict[str, Any]:
 
 
 def shape_rows(loaded: checkpoint.Loaded, shapes: int, episode_s: float, seed: int, workers: int, rows: list[Row],
-               log=print) -> tuple[dict, list[dict]]:
+               log=None) -> tuple[dict, list[dict]]:
     """(the unperturbed row, one result per row) for a shape controller on `shapes` random shapes."""
     space = task_space(harness.eval_task(loaded.cfg.task, episode_s))
     params = episodes.eval_shapes(space, shapes, seed)
@@ -292,10 +293,10 @@ def shape_rows(loaded: checkpoint.Loaded, shapes: int, episode_s: float, seed: i
     planned = max(1, int(round(episode_s * loaded.cfg.task.control_hz)))
     jobs = [(i, params[i], seed + i) for i in range(len(params))]
 
-    def measure(name: str, pert: xe.Perturbation) -> dict[str, Any]:
+    def measure(name: str, pert: xe.Perturbation, progress=None) -> dict[str, Any]:
         t0 = time.monotonic()
         init = (str(loaded.path), episode_s, pert)
-        res = harness.run_jobs(_init_shape, init, _shape_work, jobs, workers)
+        res = harness.run_jobs(_init_shape, init, _shape_work, jobs, workers, progress)
         perf = float(np.mean([r["return"] / planned for r in res]))
         return {"row": name, "performance": perf, "success_pct": 100.0 * float(np.mean([not r["fell"] for r in res])),
                 "mean_return": float(np.mean([r["return"] for r in res])), "seconds": time.monotonic() - t0,
@@ -312,22 +313,32 @@ def shape_rows(loaded: checkpoint.Loaded, shapes: int, episode_s: float, seed: i
     return _run_rows(rows, measure, skip, log)
 
 
-def _run_rows(rows: list[Row], measure, skip, log) -> tuple[dict, list[dict]]:
-    """(the unperturbed row, one result per row): `measure(name, perturbation)` each row that
-    `skip(row)` gives no reason for, each made relative to the unperturbed one and logged."""
-    base = measure("unperturbed", xe.Perturbation())
-    log(_line(base, base))
-    out = []
-    for row in rows:
-        res = {"group": row.group, "x": row.x, "paper": row.paper, "row": row.name}
-        reason = skip(row)
-        if reason:
-            res["skipped"] = reason
-        else:
-            res.update(measure(row.name, row.perturbation))
-        _finish(res, base)
-        out.append(res)
-        log(_line(res, base))
+def _run_rows(rows: list[Row], measure, skip, log=None) -> tuple[dict, list[dict]]:
+    """(the unperturbed row, one result per row): `measure(name, perturbation, progress)` each row
+    that `skip(row)` gives no reason for, each made relative to the unperturbed one and logged
+    (`log`, default a line on stdout above the progress bar). The bar counts episodes over every
+    row measured: each row runs the same episodes."""
+    reasons = [skip(row) for row in rows]
+    measured = 1 + sum(reason is None for reason in reasons)
+    with Progress("[robustness]", measured, "episodes") as bar:
+        say = log or bar.write
+
+        def progress(k: int):
+            return lambda done, total: bar.set(k * total + done, measured * total)
+
+        base = measure("unperturbed", xe.Perturbation(), progress(0))
+        say(_line(base, base))
+        out, k = [], 1
+        for row, reason in zip(rows, reasons):
+            res = {"group": row.group, "x": row.x, "paper": row.paper, "row": row.name}
+            if reason:
+                res["skipped"] = reason
+            else:
+                res.update(measure(row.name, row.perturbation, progress(k)))
+                k += 1
+            _finish(res, base)
+            out.append(res)
+            say(_line(res, base))
     return _finish(base, base), out
 
 

@@ -37,6 +37,7 @@ from learner.evaluation.registry import first_value
 from learner.evaluation.shape import episodes
 from learner import checkpoint
 from learner.checkpoint import from_checkpointable
+from learner.progress import Progress
 from learner.evaluation.shape import plots as eval_plots
 from learner.evaluation.shape import morph_demo, swim_metrics
 
@@ -259,13 +260,6 @@ def main(argv: list[str]) -> int:
     eval_plots.axes_of(space, names)  # a bad --map-params fails now, not after hours of episodes
     shapes = episodes.eval_shapes(space, args.shapes, args.seed)
     t0 = time.monotonic()
-    last = [0.0]
-
-    def progress(done: int, total: int) -> None:
-        if time.monotonic() - last[0] > 10 or done == total:
-            last[0] = time.monotonic()
-            print(f"[evaluate] {done}/{total} shapes, {time.monotonic() - t0:.0f} s", flush=True)
-
     overrides = {"shin_contact_is_fall": True} if args.fall_rule == "paper" else {}
     retarget = loaded.cfg.task.imitate.retarget
     if args.root_height is not None:
@@ -274,8 +268,9 @@ def main(argv: list[str]) -> int:
         retarget = dataclasses.replace(retarget, body_clearance_m=args.clearance)
     if retarget != loaded.cfg.task.imitate.retarget:
         overrides["retarget"] = retarget
-    results = episodes.evaluate(loaded, shapes, args.episode_s, args.seed, args.workers, progress,
-                                 imitate_overrides=overrides, box_scale=args.box_scale)
+    with Progress(f"[evaluate] {loaded.name}", len(shapes), "shapes") as bar:
+        results = episodes.evaluate(loaded, shapes, args.episode_s, args.seed, args.workers, bar.callback(),
+                                     imitate_overrides=overrides, box_scale=args.box_scale)
     summary = episodes.summarize(results, space, n_shape)
     summary["wall_s"] = time.monotonic() - t0
     meta = {"checkpoint": str(loaded.path), "name": loaded.name, "iteration": int(loaded.state.get("iteration", 0)),

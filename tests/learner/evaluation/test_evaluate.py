@@ -32,8 +32,10 @@ def test_evaluate_writes_json_maps_markdown_and_strips(tmp_path: Path, capsys) -
     ckpt = _tiny_checkpoint(tmp_path, "tiny")
     out = tmp_path / "eval"
     assert evaluate.main(["--checkpoint", str(tmp_path / "tiny"), "--shapes", "3", "--episode-s", "0.5", "--out", str(out)]) == 0
-    printed = capsys.readouterr().out
+    captured = capsys.readouterr()
+    printed = captured.out
     assert "task achievement" in printed and "fall-down" in printed
+    assert captured.err.startswith("[evaluate] tiny 3/3 shapes in ")  # the progress bar's one line off a terminal
     res = json.loads((out / "results.json").read_text())
     assert res["meta"]["checkpoint"] == str(ckpt / "state.pt")
     assert len(res["shapes"]) == 3

@@ -31,9 +31,12 @@ def test_executor_robustness_writes_table_json_and_plot(tmp_path: Path, capsys) 
     argv = ["--checkpoint", str(run), "--clips", "humanoid3d_run", "--starts", "1", "--rows", "speed,mass,projectile",
             "--out", str(out)]
     assert robustness.main(argv) == 0
-    printed = capsys.readouterr().out
+    captured = capsys.readouterr()
+    printed = captured.out
     assert "[robustness] unperturbed: relative performance 100.0%" in printed
     res = json.loads((out / "robustness.json").read_text())
+    measured = 1 + sum("skipped" not in r for r in res["rows"])  # one episode each: the bar counts them all
+    assert captured.err.startswith(f"[robustness] {measured}/{measured} episodes in "), captured.err
     assert set(res) == {"meta", "unperturbed", "rows"}
     assert res["unperturbed"]["relative"] == 1.0 and res["unperturbed"]["performance"] > 0
     assert "own termination rule" in res["meta"]["performance"]
