@@ -49,7 +49,7 @@ class RolloutActor:
     ):
         """`sampler_handle`: the sampler's Ray actor handle, if any; its endpoint is looked up
         through it again on every reconnect, so a restarted sampler on a new port is found.
-        `keys`: the run's CURVE keys as actors hold them (`RunKeys.for_actors`); every socket of
+        `keys`: this actor's share of the run's CURVE keys (`RunKeys.for_actor`); every socket of
         this actor authenticates with them."""
         configure_torch(cfg.torch_threads)
         self.actor_id, self.cfg = actor_id, cfg

@@ -53,6 +53,7 @@ from common.motion.mirror import MIRROR_SUFFIX, mirrored_id, source_id
 from common.motion.reference import CharacterMotion
 from common.params import ParamSpace
 from common.tasks.base import _DIVERGENCE_WARNINGS, TaskConfig, diverged_step
+from common.tasks.content_bounds import OBS_MAX_ABS_LIMIT, ContentBounds
 from common.tasks.executor import rewards as rw
 from common.tasks.executor.observations import BodyKin, agent_features, kinematics_from_arrays, observation_of
 from common.tasks.executor.schedulers.base import DatasetScheduler, Scheduler, TargetFrame
@@ -73,6 +74,9 @@ PROJECTILE = {"mass_kg": 2.0, "radius_m": 0.08}
 PROJECTILES = 24
 """Balls in a scene built with `ExecutorConfig.projectile`, thrown in turn, so one can be thrown
 every control step although each flies for about 12 steps (2 m at 10 m/s, 60 Hz)."""
+REWARD_FLOOR = -1.0
+"""Lowest reward a step may earn (`content_bounds`): the five terms alone never go below 0, and
+this leaves room for a penalty on the action (an action-rate term) subtracted from them."""
 MAX_UNDRAINED_SEGMENTS = 4096
 """Clip segments an environment keeps for `drain_segments`; older ones are dropped when nobody drains."""
 PROJECTILE_LIFE_STEPS = 60
@@ -286,6 +290,13 @@ class ExecutorEnv:
     @staticmethod
     def clips(cfg: TaskConfig) -> list[tuple[str, str]]:
         return executor_clips(cfg)
+
+    @staticmethod
+    def content_bounds(cfg: TaskConfig) -> ContentBounds:
+        """UniCon's weighted sum of five terms in (0, 1] (`rewards.weighted_sums`) is in [0, sum w];
+        the floor leaves room for a penalty subtracted from it (REWARD_FLOOR)."""
+        return ContentBounds(reward_min=REWARD_FLOOR, reward_max=float(sum(cfg.executor.reward_weights)),
+                             obs_max_abs=OBS_MAX_ABS_LIMIT, episode_steps=cfg.episode_steps)
 
     def __init__(self, cfg: TaskConfig, seed: int = 0, like: ExecutorEnv | None = None):
         """`like`: an environment of the same `cfg` whose compiled model (unless projectiles make
