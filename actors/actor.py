@@ -51,7 +51,7 @@ class RolloutActor:
         looked up through it again on every reconnect, so a restarted sampler on a new port is
         found. A name, not the actor handle: a handle among the constructor arguments of an actor
         Ray may restart makes Ray log an error line on every run (ray-project/ray#53727).
-        `keys`: the run's CURVE keys as actors hold them (`RunKeys.for_actors`); every socket of
+        `keys`: this actor's share of the run's CURVE keys (`RunKeys.for_actor`); every socket of
         this actor authenticates with them."""
         configure_torch(cfg.torch_threads)
         self.actor_id, self.cfg = actor_id, cfg

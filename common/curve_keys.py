@@ -2,19 +2,20 @@
 
 Every ZeroMQ socket of a run is authenticated and encrypted with CURVE (libzmq's
 CurveZMQ: Curve25519 keys, each connection's traffic encrypted with its own session key).
-`RunKeys.generate()` makes, for one run, a server key pair (every socket that binds: the
-learner's unroll PULL, weights PUB and snapshot ROUTER, the sampler's ROUTER) and two client
-key pairs, one for the learner's own client sockets and one for the rollout actors. The learner
-hands each part only what it needs, through Ray's actor arguments (never a file, never a socket
-of ours):
+`RunKeys.generate(num_actors)` makes, for one run, a server key pair (every socket that binds:
+the learner's unroll PULL, weights PUB and snapshot ROUTER, the sampler's ROUTER) and client key
+pairs: one for the learner's own client sockets and one per rollout actor. The learner hands each
+part only what it needs, through Ray's actor arguments (never a file, never a socket of ours):
 
-- actors: the server's public key and the actor key pair (`RunKeys.for_actors`);
-- the sampler: the server key pair and the two clients' public keys (`RunKeys.for_sampler`).
+- actor i: the server's public key and actor i's key pair (`RunKeys.for_actor`);
+- the sampler: the server key pair and the clients' public keys (`RunKeys.for_sampler`).
 
 A server socket's process runs one `Gatekeeper` (a ZAP handler, pyzmq's `ThreadAuthenticator`)
-per ZeroMQ context: it admits the two client public keys and stamps each connection's messages
-with a `User-Id` naming the role (`learner` or `actor`), which the sampler reads to take
-state-changing requests from the learner only. A peer without a key (a plain connection), with
+per ZeroMQ context: it admits the client public keys and stamps each connection's messages with
+a `User-Id` naming who holds the key (`learner`, or `actor/<id>`): the sampler reads it to take
+state-changing requests from the learner only, and the learner to take an actor's unrolls and
+heartbeats only under that actor's own key (`actor_user_id`), so one actor's key cannot speak
+for another actor id. A peer without a key (a plain connection), with
 another run's key or a made-up one fails the handshake; `RefusalCounter` counts those from the
 server socket's monitor events, so every refusal shows up in the run's counters.
 """
@@ -30,7 +31,8 @@ from zmq.utils import z85
 from zmq.utils.monitor import recv_monitor_message
 
 LEARNER, ACTOR = "learner", "actor"
-"""The roles a client key stands for (the `User-Id` the Gatekeeper gives its connections)."""
+"""The roles a client key stands for: the learner's `User-Id` is its role; an actor's is
+`actor_user_id(its id)`."""
 
 REFUSAL_EVENTS = {
     zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL: "auth_protocol",
@@ -39,6 +41,12 @@ REFUSAL_EVENTS = {
 }
 """Monitor events that mean a peer was refused, by the counter they go to: a peer that speaks no
 CURVE (or garbage), a key the Gatekeeper does not know, a handshake that broke off."""
+
+
+def actor_user_id(actor_id: int) -> str:
+    """The `User-Id` of actor `actor_id`'s connections: what the learner compares with the actor
+    id a message claims."""
+    return f"{ACTOR}/{actor_id}"
 
 
 @dataclass(frozen=True)
@@ -51,20 +59,39 @@ class RunKeys:
     learner_public: bytes
     learner_secret: bytes
     actor_public: bytes
+    """The actor key pair this copy speaks with: actor `actor_id`'s."""
     actor_secret: bytes
+    actor_id: int = 0
+    actor_keys: tuple[tuple[bytes, bytes], ...] = ()
+    """Every actor's (public, secret) pair by actor id: all of them in the learner's copy, the
+    public keys only in the sampler's, none in an actor's."""
 
     @staticmethod
-    def generate() -> "RunKeys":
-        server, learner, actor = zmq.curve_keypair(), zmq.curve_keypair(), zmq.curve_keypair()
-        return RunKeys(*server, *learner, *actor)
+    def generate(num_actors: int = 1) -> "RunKeys":
+        """A server pair, the learner's pair and one pair per actor id 0..num_actors-1."""
+        if not 1 <= num_actors <= 2**16:
+            raise ValueError(f"num_actors = {num_actors}; allowed: [1, {2**16}]")
+        server, learner = zmq.curve_keypair(), zmq.curve_keypair()
+        actors = tuple(zmq.curve_keypair() for _ in range(num_actors))
+        return RunKeys(*server, *learner, *actors[0], actor_id=0, actor_keys=actors)
+
+    def for_actor(self, actor_id: int) -> "RunKeys":
+        """What rollout actor `actor_id` holds: the server's public key and its own key pair."""
+        if not any(secret for _, secret in self.actor_keys):
+            raise ValueError("these keys hold no actor's secret key: only the learner's copy hands them out")
+        if not 0 <= actor_id < len(self.actor_keys):
+            raise ValueError(f"actor id {actor_id}: these keys are for actors 0..{len(self.actor_keys) - 1}")
+        public, secret = self.actor_keys[actor_id]
+        return replace(self, server_secret=b"", learner_secret=b"", actor_public=public, actor_secret=secret,
+                       actor_id=actor_id, actor_keys=())
 
     def for_actors(self) -> "RunKeys":
-        """What a rollout actor holds: the server's public key and its own key pair."""
-        return replace(self, server_secret=b"", learner_secret=b"")
+        """Actor 0's keys (`for_actor(0)`): for tools that stand in for one actor."""
+        return self.for_actor(0)
 
     def for_sampler(self) -> "RunKeys":
         """What the sampler service holds: the server key pair and the clients' public keys."""
-        return replace(self, learner_secret=b"", actor_secret=b"")
+        return replace(self, learner_secret=b"", actor_secret=b"", actor_keys=tuple((p, b"") for p, _ in self.actor_keys))
 
     def client_pair(self, role: str) -> tuple[bytes, bytes]:
         pair = {LEARNER: (self.learner_public, self.learner_secret), ACTOR: (self.actor_public, self.actor_secret)}[role]
@@ -73,8 +100,11 @@ class RunKeys:
         return pair
 
     def roles(self) -> dict[bytes, str]:
-        """Client public key -> role."""
-        return {self.learner_public: LEARNER, self.actor_public: ACTOR}
+        """Client public key -> `User-Id`: `learner`, or `actor/<id>` for each actor's key."""
+        out = {self.actor_public: actor_user_id(self.actor_id)}
+        out.update((public, actor_user_id(i)) for i, (public, _) in enumerate(self.actor_keys))
+        out[self.learner_public] = LEARNER
+        return out
 
 
 def make_server(sock: zmq.Socket, keys: RunKeys | None) -> None:
@@ -100,8 +130,8 @@ def make_client(sock: zmq.Socket, keys: RunKeys | None, role: str) -> None:
 
 
 def role_of(frame: zmq.Frame) -> str:
-    """The role of the connection a received frame came from (`learner`, `actor`), or "" on a
-    socket without CURVE."""
+    """The `User-Id` of the connection a received frame came from (`learner`, `actor/<id>`), or
+    "" on a socket without CURVE."""
     try:
         return frame.get("User-Id") or ""
     except zmq.ZMQError:  # NOTE: no User-Id property when the connection had no ZAP handshake
@@ -109,7 +139,7 @@ def role_of(frame: zmq.Frame) -> str:
 
 
 class Gatekeeper(ThreadAuthenticator):
-    """The ZAP handler of one ZeroMQ context: admits this run's client keys, names their role."""
+    """The ZAP handler of one ZeroMQ context: admits this run's client keys, names who holds each."""
 
     _by_context: dict[int, "Gatekeeper"] = {}
     _lock = threading.Lock()

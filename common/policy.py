@@ -72,7 +72,26 @@ def mlp(sizes: list[int], activation: str, out_gain: float) -> nn.Sequential:
 
 class ObsNormalizer(nn.Module):
     """Running mean and variance (Chan et al. parallel update), stored as buffers so they
-    travel inside the policy's state dict to actors and into checkpoints."""
+    travel inside the policy's state dict to actors and into checkpoints.
+
+    The update is bounded, so that no single batch moves the statistics by orders of magnitude
+    (one batch of 3e38 observations once set a mean of 2.7e35 and a variance of 8e73 that every
+    later checkpoint kept): raw values are clipped to +-RAW_LIMIT, and once statistics exist one
+    batch moves a dimension's standard deviation by at most a factor MAX_STD_STEP either way and
+    its mean by at most MAX_MEAN_STEP standard deviations (at least STD_FLOOR). An honest
+    batch moves them far less (its weight is its share of every observation seen); a new
+    observation scale is reached over a few batches. `check` refuses statistics no bounded
+    update can produce, and a checkpoint is not written with them (`Learner.state_dict`)."""
+
+    RAW_LIMIT = 1e6
+    """Raw observation values are clipped to this before they are folded in: no task observes
+    more (`common.tasks.content_bounds.OBS_MAX_ABS_LIMIT`)."""
+    MAX_STD_STEP = 2.0
+    """Factor by which one batch may change a dimension's standard deviation, up or down."""
+    MAX_MEAN_STEP = 2.0
+    """Standard deviations by which one batch may move a dimension's mean."""
+    STD_FLOOR = 1e-2
+    """The standard deviation those steps are measured in for a dimension that has not varied yet."""
 
     def __init__(self, dim: int, clip: float = 10.0, eps: float = 1e-8):
         super().__init__()
@@ -81,23 +100,50 @@ class ObsNormalizer(nn.Module):
         self.register_buffer("mean", torch.zeros(dim, dtype=torch.float64))
         self.register_buffer("var", torch.ones(dim, dtype=torch.float64))
         self.register_buffer("count", torch.tensor(0.0, dtype=torch.float64))
+        self.limited_updates = 0
+        """Updates that one of the steps above held back (not checkpointed: a session's count)."""
 
     @torch.no_grad()
     def update(self, x: torch.Tensor) -> None:
-        """Fold a batch `[B, dim]` of raw observations into the running statistics."""
+        """Fold a batch `[B, dim]` of raw observations into the running statistics, bounded as
+        the class docstring says; a batch holding NaN or Inf changes nothing."""
         x = x.reshape(-1, self.mean.shape[0]).to(torch.float64)
         n = x.shape[0]
-        if n == 0:
+        if n == 0 or not torch.isfinite(x).all():
             return
+        x = x.clamp(-self.RAW_LIMIT, self.RAW_LIMIT)
         batch_mean = x.mean(0)
         batch_var = x.var(0, unbiased=False)
         total = self.count + n
         delta = batch_mean - self.mean
         new_mean = self.mean + delta * (n / total)
         m2 = self.var * self.count + batch_var * n + delta.square() * (self.count * n / total)
+        new_var = (m2 / total).clamp(max=self.RAW_LIMIT**2)
+        if self.count > 0:  # before the first batch the statistics are placeholders
+            std = self.var.sqrt()
+            unit = std.clamp(min=self.STD_FLOOR)
+            held_mean = torch.minimum(torch.maximum(new_mean, self.mean - self.MAX_MEAN_STEP * unit),
+                                      self.mean + self.MAX_MEAN_STEP * unit)
+            held_var = torch.minimum(torch.maximum(new_var, (std / self.MAX_STD_STEP).square()),
+                                     (unit * self.MAX_STD_STEP).square())
+            if not (torch.equal(held_mean, new_mean) and torch.equal(held_var, new_var)):
+                self.limited_updates += 1
+            new_mean, new_var = held_mean, held_var
         self.mean.copy_(new_mean)
-        self.var.copy_(m2 / total)
+        self.var.copy_(new_var)
         self.count.copy_(total)
+
+    def check(self) -> None:
+        """ValueError naming the first statistic that is not finite or lies beyond what a bounded
+        update can produce (|mean| <= RAW_LIMIT, 0 <= var <= RAW_LIMIT^2, count >= 0)."""
+        limit = self.RAW_LIMIT
+        for name, value, lo, hi in (("mean", self.mean, -limit, limit), ("var", self.var, 0.0, limit**2),
+                                    ("count", self.count.reshape(1), 0.0, float("inf"))):
+            bad = ~torch.isfinite(value) | (value < lo) | (value > hi)
+            if bad.any():
+                i = int(bad.nonzero()[0, 0])
+                raise ValueError(f"observation normalizer {name}[{i}] = {float(value[i]):g}; allowed: finite, in "
+                                 f"[{lo:g}, {hi:g}] (what a bounded update can produce)")
 
     CONSTANT_VAR = 1e-10
     """A dimension whose running variance is below this never varied in training."""

@@ -15,6 +15,12 @@ from learner.config import RunConfig
 log = logging.getLogger(__name__)
 
 
+def _own_keys(keys: RunKeys | None, actor_id: int) -> RunKeys | None:
+    """What actor `actor_id` may hold of the run's keys: the server's public key and its own pair,
+    which speaks for its id only (the learner refuses its messages under another id)."""
+    return keys.for_actor(actor_id) if keys is not None else None
+
+
 class ActorPool(Protocol):
     def pump(self) -> None: ...
 
@@ -27,8 +33,10 @@ class ActorPool(Protocol):
 
 class SerialActorPool:
     def __init__(self, cfg: RunConfig, endpoints: dict[str, str], keys: RunKeys | None = None):
+        """`keys`: the run's CURVE keys; each actor gets only its own pair (`RunKeys.for_actor`)."""
         self.actors = [
-            RolloutActor(i, cfg.task, cfg.policy, cfg.actors, endpoints, seed=cfg.seed + 1000 * (i + 1), keys=keys)
+            RolloutActor(i, cfg.task, cfg.policy, cfg.actors, endpoints, seed=cfg.seed + 1000 * (i + 1),
+                         keys=_own_keys(keys, i))
             for i in range(cfg.actors.num_actors)
         ]
 
@@ -51,8 +59,9 @@ class SerialActorPool:
 class RayActorPool:
     def __init__(self, cfg: RunConfig, endpoints: dict[str, str], ctx, sampler_name: str = "",
                  keys: RunKeys | None = None) -> None:
-        """`sampler_name`: the sampler actor's Ray name (`SamplerHandle.ray_name`). `keys`: the run's CURVE keys as actors hold them (`RunKeys.for_actors`), handed to each
-        actor through Ray (the cluster's own token authentication guards that channel)."""
+        """`sampler_name`: the sampler actor's Ray name (`SamplerHandle.ray_name`). `keys`: the run's
+        CURVE keys; each actor is handed only its own pair (`RunKeys.for_actor`) through Ray (the
+        cluster's own token authentication guards that channel)."""
         import ray  # lazy: heavy (ray), only in the Ray modes
 
         self.ray = ray
@@ -60,7 +69,8 @@ class RayActorPool:
         opts = cluster.actor_options(ctx, cluster.ROLLOUT_RESOURCE, 1.0, cfg.actors.num_cpus)
         self.handles = [
             remote_cls.options(max_concurrency=2, max_restarts=cfg.actor_max_restarts, **opts).remote(
-                i, cfg.task, cfg.policy, cfg.actors, endpoints, cfg.seed + 1000 * (i + 1), sampler_name, keys
+                i, cfg.task, cfg.policy, cfg.actors, endpoints, cfg.seed + 1000 * (i + 1), sampler_name,
+                _own_keys(keys, i)
             )
             for i in range(cfg.actors.num_actors)
         ]

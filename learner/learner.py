@@ -150,9 +150,13 @@ class Learner:
             out["charts/episode_return"] = float(np.mean(self.recent_returns))
             out["charts/episode_length"] = float(np.mean(self.recent_lengths))
         out["charts/episodes"] = float(self.episodes)
+        out["stats/obs_normalizer_limited"] = float(self.policy.normalizer.limited_updates)
         return out
 
     def state_dict(self) -> dict[str, Any]:
+        """Everything a resume needs. ValueError (nothing returned, so no checkpoint written) if
+        the observation normalizer holds a statistic no bounded update can produce."""
+        self.policy.normalizer.check()
         return {
             "config": self.cfg.to_json(),
             "iteration": self.iteration,

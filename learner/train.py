@@ -30,6 +30,7 @@ from learner.scalar_sinks import open_sink
 from learner.sampler_handle import SamplerHandle
 from learner.signals import StopFlag
 from learner.transport import LearnerTransport
+from learner.unroll_bounds import UnrollBounds
 
 log = logging.getLogger(__name__)
 
@@ -130,10 +131,10 @@ def _start(cfg: RunConfig) -> Run:
     host = cluster.bind_host(ctx, cfg.bind_host)
     if not cfg.actors.seq_ledger_dir and host == "127.0.0.1":
         cfg = dataclasses.replace(cfg, actors=dataclasses.replace(cfg.actors, seq_ledger_dir=str(run_dir / "ledger")))
-    keys = RunKeys.generate() if cfg.curve else None  # NOTE: per run and per session, never written to disk
+    keys = RunKeys.generate(cfg.actors.num_actors) if cfg.curve else None  # NOTE: per run and per session, never written to disk
     transport = LearnerTransport(host, learner.obs_dim, learner.act_dim, learner.space.dim, cfg.port_base,
                                  unroll_length=cfg.actors.unroll_length, envs_per_actor=cfg.actors.envs_per_actor,
-                                 num_actors=cfg.actors.num_actors, keys=keys)
+                                 num_actors=cfg.actors.num_actors, keys=keys, bounds=UnrollBounds.for_task(cfg.task))
     if resume_from is not None and "transport" in resume_from[1]:
         transport.load_state_dict(resume_from[1]["transport"])
     run = Run(cfg, run_dir, out, stop, ctx, learner, transport, last_saved=learner.iteration if resume_from else -1,
@@ -168,11 +169,10 @@ def _start_services(run: Run, host: str, resume_from) -> None:
     endpoints = {**transport.endpoints, "sampler": run.sampler.endpoint}
     out.line(f"[morphmimic] run {run.run_dir} | mode {ctx.kind if ctx else 'serial'} | endpoints {endpoints}")
     transport.publish(learner.weights_msg())
-    actor_keys = run.keys.for_actors() if run.keys is not None else None
     if ctx is None:
-        run.pool = SerialActorPool(cfg, endpoints, keys=actor_keys)
+        run.pool = SerialActorPool(cfg, endpoints, keys=run.keys)
     else:
-        run.pool = RayActorPool(cfg, endpoints, ctx, sampler_name=run.sampler.ray_name, keys=actor_keys)
+        run.pool = RayActorPool(cfg, endpoints, ctx, sampler_name=run.sampler.ray_name, keys=run.keys)
     run.health = HealthMonitor(transport.last_seen, cfg.stall_timeout_s, out.line)
     run.collector = Collector(transport, run.pool, cfg, run.stop, ctx is None, out)
 

@@ -1,15 +1,22 @@
 """The learner's sockets: PULL for unrolls, PUB for weights, ROUTER for weight snapshots.
 
 Every received message is decoded and validated here (`wire.decode` with the configuration's
-T, N and sizes pinned, then the actor id); what fails is counted under `rejected/<kind>` and
-logged once per kind, and nothing raised while accepting a message ever leaves `receive`
-(`rejected/internal` counts our own bugs). Nothing malformed reaches the optimizer.
+T, N and sizes pinned, then the actor id, under CURVE the key it came with, its sequence number,
+and an unroll's content against its task's bounds, `learner/unroll_bounds.py`); what fails is
+counted under `rejected/<kind>` and logged once per kind, and nothing raised while accepting a
+message ever leaves `receive` (`rejected/internal` counts our own bugs). Nothing malformed or
+out of its task's bounds reaches the optimizer, the counters or the sampler.
 
 Loss accounting: each actor numbers its unrolls (`UnrollMsg.seq`, durable across restarts with
 `actors/seq_ledger.py`). A number skipped by an unroll, or covered by a heartbeat's `seq` but
 never received, is a lost unroll: `seq_gap_unrolls`. At stop, `drain` reads the socket until
 every actor's final heartbeat arrived (or it stays quiet): what arrives is counted, and the final
 heartbeat's `seq` exposes the tail an actor numbered but the learner never got.
+
+A number is judged against what the actor could have sent (`_advance`): a jump of more than
+`MAX_SEQ_JUMP` is refused (`rejected/seq_jump`) and never counted as a gap, and a number below
+the actor's numbering (a restart, or a spoofed seq 0) never lowers the high-water mark that the
+actor's next unroll is counted from.
 """
 
 from __future__ import annotations
@@ -22,22 +29,31 @@ from collections.abc import Callable
 import zmq
 
 from common import sockets, wire
-from common.curve_keys import RefusalCounter, RunKeys
+from common.curve_keys import RefusalCounter, RunKeys, actor_user_id, role_of
 from common.rpc import RouterServer
+from learner.unroll_bounds import UnrollBounds
 
 log = logging.getLogger(__name__)
+
+MAX_SEQ_JUMP = 1024
+"""Most unroll numbers one message may skip. An honest gap is the few unrolls queued between a
+dying actor and the learner (ZeroMQ's queues hold 4 each way), one per crash before a send, or
+unrolls the codec refused; a larger jump is refused, not counted as lost unrolls."""
 
 
 class LearnerTransport:
     def __init__(self, host: str, obs_dim: int, act_dim: int, n_params: int, port_base: int = 0, *,
-                 unroll_length: int, envs_per_actor: int, num_actors: int, keys: RunKeys | None = None):
+                 unroll_length: int, envs_per_actor: int, num_actors: int, keys: RunKeys | None = None,
+                 bounds: UnrollBounds | None = None):
         """`port_base` 0 binds free ports; else unrolls on port_base, weights PUB on +1, snapshots on +2.
 
         An unroll must be `[unroll_length, envs_per_actor, ...]` with these obs/act/param sizes,
         and come (like a heartbeat) from an actor id in `[0, num_actors)`: anything else is a
         counted rejection, never a new actor in the health counters. `keys`: the run's CURVE
-        keys; with them every socket admits only this run's clients, and a peer the handshake
-        refuses is counted as `rejected/auth_*` (`common.curve_keys`)."""
+        keys; with them every socket admits only this run's clients, a peer the handshake
+        refuses is counted as `rejected/auth_*` (`common.curve_keys`), and an actor's unrolls and
+        heartbeats are taken only under its own key (`rejected/wrong_actor_key`). `bounds`: the
+        task's content bounds; an unroll outside them is dropped whole (`rejected/bounds_*`)."""
         addr = lambda i: f"tcp://{host}:{port_base + i}" if port_base else f"tcp://{host}"  # noqa: E731
         self.pull, unrolls = sockets.bind_unroll_pull(addr(0), keys)
         self.pub, weights_pub = sockets.bind_weights_pub(addr(1), keys)
@@ -49,10 +65,18 @@ class LearnerTransport:
         self.dims = {"T": unroll_length, "N": envs_per_actor, "obs_dim": obs_dim, "act_dim": act_dim, "n_params": n_params}
         """Shape names of `UnrollMsg` pinned to the configuration (see `wire.decode`)."""
         self.num_actors = num_actors
+        self.secured = keys is not None
+        self.bounds = bounds
         self.current: wire.WeightsMsg | None = None
         self.counters: collections.Counter[str] = collections.Counter()
         self.last_seq: dict[int, int] = {}
         """Highest unroll sequence number received (or announced by a heartbeat) per actor."""
+        self.numbering: dict[int, int] = {}
+        """The number each actor's last accepted message reached: its high-water mark, or lower
+        after a restart of its numbering (an actor without a ledger counts from 0 again)."""
+        self.refused_at: dict[int, int] = {}
+        """The number of an actor's last message refused as a jump: a next unroll that follows on
+        from it is accepted, so one refused message never blocks an actor."""
         self.resumed = False
         """Set by `load_state_dict`: each actor's first message sets its baseline, not seq 0."""
         self.received: collections.Counter[int] = collections.Counter()
@@ -130,6 +154,10 @@ class LearnerTransport:
             if msg.actor_id >= self.num_actors:
                 raise wire.WireError(f"{type(msg).KIND} from actor {msg.actor_id}; this run has actors "
                                      f"0..{self.num_actors - 1}", "unknown_actor")
+            if self.secured and (holder := role_of(frames[0])) != actor_user_id(msg.actor_id):
+                raise wire.WireError(f"{type(msg).KIND} claims actor {msg.actor_id} but came with the key of "
+                                     f"{holder or 'nobody known'}; an actor's key speaks only for its own id",
+                                     "wrong_actor_key")
             return self._book(msg, policy_version, max_policy_lag)
         except wire.WireError as exc:
             self._reject(exc.kind, str(exc))
@@ -144,23 +172,45 @@ class LearnerTransport:
         heartbeat) every number up to `seq` was sent before it on this pipe. Numbers that should
         have arrived by now and did not are lost unrolls (`seq_gap_unrolls`).
 
-        Numbering starts at 0 and, with a sequence ledger, survives actor restarts; an actor
-        without a ledger restarts from 0, which is counted as `seq_restarts`, not as a loss."""
+        The missing numbers are counted from the actor's high-water mark, or, for a number below
+        it, from where its restarted numbering got to (an actor without a ledger restarts from 0,
+        counted as `seq_restarts`, not as a loss). A number below both is a restart (an unroll)
+        or old news (a heartbeat): it never lowers the high-water mark, so a spoofed seq 0 cannot
+        make the actor's next real unroll look like a jump over its whole sequence. A message
+        that would skip more than `MAX_SEQ_JUMP` numbers is refused (`WireError` "seq_jump") and
+        counts no gap; a next unroll that follows on from the refused number is accepted (an
+        actor whose ledger numbers on from an earlier session), a heartbeat never is."""
         if actor_id not in self.last_seq and self.resumed:
-            self.last_seq[actor_id] = seq - 1 if unroll else seq  # a resumed learner's baseline
-        previous = self.last_seq.get(actor_id, -1)
+            baseline = seq - 1 if unroll else seq  # a resumed learner's baseline
+            if baseline >= 0:
+                self.last_seq[actor_id] = self.numbering[actor_id] = baseline
+        high = self.last_seq.get(actor_id, -1)
+        current = self.numbering.get(actor_id, high)
         due = seq - 1 if unroll else seq
-        if due > previous:
-            gap = due - previous
+        base = high if due >= high else current if due >= current else None
+        if base is not None and due - base > MAX_SEQ_JUMP:
+            refused = self.refused_at.get(actor_id)
+            if refused is None or not unroll or not refused <= due <= refused + MAX_SEQ_JUMP:
+                self.refused_at[actor_id] = seq
+                raise wire.WireError(f"{'unroll' if unroll else 'heartbeat'} seq {seq} of actor {actor_id} skips "
+                                     f"{due - base} numbers after {base}; allowed: at most {MAX_SEQ_JUMP}",
+                                     "seq_jump")
+            base = refused
+        self.refused_at.pop(actor_id, None)
+        if base is not None and due > base:
+            gap = due - base
             if self.counters["seq_gap_unrolls"] == 0:
-                log.warning("actor %d: %d unroll(s) lost (seq %d -> %d)", actor_id, gap, previous, seq)
+                log.warning("actor %d: %d unroll(s) lost (seq %d -> %d)", actor_id, gap, base, seq)
             self.counters["seq_gap_unrolls"] += gap
         if unroll:
-            if seq <= previous:
+            if base is None:
                 self.counters["seq_restarts"] += 1
-            self.last_seq[actor_id] = seq
-        elif seq > previous:
-            self.last_seq[actor_id] = seq
+            self.numbering[actor_id] = seq
+        elif base is not None:
+            self.numbering[actor_id] = due
+        reached = self.numbering.get(actor_id, -1)
+        if reached > high:
+            self.last_seq[actor_id] = reached
 
     def _book(self, msg, policy_version: int, max_policy_lag: int) -> wire.UnrollMsg | None:
         if isinstance(msg, wire.UnrollMsg) and msg.policy_version > policy_version:
@@ -168,14 +218,16 @@ class LearnerTransport:
                                  f"{policy_version}", "out_of_range")
         self.last_seen[msg.actor_id] = time.monotonic()
         if isinstance(msg, wire.HeartbeatMsg):
-            self.counters["heartbeats"] += 1
             # A heartbeat travels on the unrolls' pipe, after them: every number up to its seq
             # that has not arrived never will.
             self._advance(msg.actor_id, msg.seq, unroll=False)
+            self.counters["heartbeats"] += 1
             if msg.final:
                 self.finals[msg.actor_id] = msg.seq
             return None
         self._advance(msg.actor_id, msg.seq, unroll=True)
+        if self.bounds is not None:  # after booking its number: a dropped unroll is no lost unroll
+            self.bounds.check(msg)
         self.received[msg.actor_id] += 1
         self.sampler_outages[msg.actor_id] = msg.sampler_outages
         self.counters["unrolls_received"] += 1
@@ -229,7 +281,7 @@ class LearnerTransport:
         received between it and the stop were trained on, not lost, and the actors' ledgers
         number on from them, so each actor's first message after a resume is the new baseline
         (otherwise every resume counted them as gaps: "gaps 49" after 9 resumes)."""
-        self.last_seq = {}
+        self.last_seq, self.numbering, self.refused_at = {}, {}, {}
         self.resumed = True
         self.counters.update(state["counters"])
 

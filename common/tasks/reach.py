@@ -19,12 +19,17 @@ import numpy as np
 
 from common.params import ParamSpace
 from common.tasks.base import TaskConfig, diverged_step, step_physics
+from common.tasks.content_bounds import ContentBounds
 
 LINK_M = (0.12, 0.12)
 """Link lengths in metres; the reach radius is their sum."""
 GEAR_NM = 0.05
 REWARD_SCALE_M = 0.03
 EFFORT_COST = 0.01
+OBS_MAX_ABS = 1e3
+"""Observations are cosines, sines, positions within 0.24 m and 0.1 x joint speed; the 0.05 N m
+motors against the joints' damping hold the speed to tens of rad/s (3.2 at most under a random
+policy), so 1000 is beyond any honest state."""
 
 
 def build_arm() -> mujoco.MjModel:
@@ -68,6 +73,12 @@ class ReachEnv:
     @staticmethod
     def clips(cfg: TaskConfig) -> list[tuple[str, str]]:
         return []
+
+    @staticmethod
+    def content_bounds(cfg: TaskConfig) -> ContentBounds:
+        """A step earns a bell in (0, 1] minus the effort cost of controls clipped to [-1, 1]."""
+        return ContentBounds(reward_min=-EFFORT_COST * ReachEnv.act_dim, reward_max=1.0, obs_max_abs=OBS_MAX_ABS,
+                             episode_steps=cfg.episode_steps)
 
     def __init__(self, cfg: TaskConfig, seed: int = 0):
         self.cfg = cfg

@@ -1,5 +1,5 @@
 """One registry of tasks: each task's environment class, family and the commands that take its
-checkpoints (`TASKS`), and `make_env(cfg, seed)`, `task_space(cfg)` by task name."""
+checkpoints (`TASKS`), and `make_env(cfg, seed)`, `task_space(cfg)`, `task_bounds(cfg)` by task name."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from typing import Sequence
 from common.params import ParamSpace
 from common.tasks.base import Env, TaskConfig
 from common.tasks.batch import BatchEnv, LoopBatch
+from common.tasks.content_bounds import ContentBounds
 
 SHAPE_COMMANDS = ("train", "curriculum", "evaluate", "ablation", "learning-curve", "robustness", "play", "studio")
 EXECUTOR_COMMANDS = ("train", "distill", "evaluate", "ablation", "learning-curve", "robustness", "velocity-probe",
@@ -75,6 +76,12 @@ def make_batch_env(cfg: TaskConfig, seeds: Sequence[int]) -> BatchEnv:
 def task_space(cfg: TaskConfig) -> ParamSpace:
     """The task's per-episode parameter space, without building an environment."""
     return _env_class(cfg.name).param_space(cfg)
+
+
+def task_bounds(cfg: TaskConfig) -> ContentBounds:
+    """What one step of the task can hold (reward range, observation magnitude, horizon), as the
+    task declares it beside its reward; the learner drops an unroll outside it."""
+    return _env_class(cfg.name).content_bounds(cfg)
 
 
 def task_check(cfg: TaskConfig) -> None:

@@ -38,7 +38,7 @@ def _unroll(T: int, N: int, obs_dim: int, act_dim: int, n_params: int) -> list:
 def stream(frames: list, messages: int, keys: RunKeys | None) -> float:
     """Seconds to push `messages` copies of `frames` through PUSH -> PULL on 127.0.0.1."""
     pull, endpoint = sockets.bind_unroll_pull("tcp://127.0.0.1", keys)
-    push = sockets.connect_unroll_push(endpoint, keys.for_actors() if keys else None)
+    push = sockets.connect_unroll_push(endpoint, keys.for_actor(0) if keys else None)
     try:
         push.send_multipart(frames)
         pull.recv_multipart()  # the handshake is done

@@ -44,10 +44,17 @@ def _stranger_push(endpoint: str, keys: RunKeys | None) -> zmq.Socket:
 
 
 def test_the_split_keys_hold_only_what_each_part_needs() -> None:
-    keys = RunKeys.generate()
-    actors, sampler = keys.for_actors(), keys.for_sampler()
-    assert actors.server_secret == b"" and actors.learner_secret == b"" and actors.actor_secret == keys.actor_secret
+    keys = RunKeys.generate(3)
+    actors, sampler = keys.for_actor(2), keys.for_sampler()
+    assert actors.server_secret == b"" and actors.learner_secret == b"" and actors.actor_keys == ()
+    assert (actors.actor_public, actors.actor_secret) == keys.actor_keys[2] and actors.actor_id == 2
+    assert len({secret for _, secret in keys.actor_keys}) == 3  # a pair per actor
     assert sampler.learner_secret == b"" and sampler.actor_secret == b"" and sampler.server_secret == keys.server_secret
+    assert all(secret == b"" for _, secret in sampler.actor_keys) and len(sampler.roles()) == 4
+    with pytest.raises(ValueError, match="no actor's secret"):
+        sampler.for_actor(0)
+    with pytest.raises(ValueError, match="actors 0..2"):
+        keys.for_actor(3)
     sock = zmq.Context.instance().socket(zmq.PULL)
     with pytest.raises(ValueError, match="no server secret"):
         make_server(sock, actors)
@@ -58,7 +65,7 @@ def test_the_split_keys_hold_only_what_each_part_needs() -> None:
 
 @pytest.mark.parametrize("stranger", ["no keys", "another run's keys", "a made-up client key"])
 def test_the_unroll_socket_admits_this_runs_actors_and_counts_strangers(stranger: str) -> None:
-    keys = RunKeys.generate()
+    keys = RunKeys.generate(2)
     t = _transport(keys=keys)
     try:
         if stranger == "no keys":
@@ -74,7 +81,7 @@ def test_the_unroll_socket_admits_this_runs_actors_and_counts_strangers(stranger
         got = _receive_until(t, lambda g: _auth_refusals(t.counters, "rejected/") > 0)
         assert got == [], "a stranger's unroll reached the learner"
         assert _auth_refusals(t.counters, "rejected/") >= 1, dict(t.counters)
-        member = sockets.connect_unroll_push(t.endpoints["unrolls"], keys.for_actors())
+        member = sockets.connect_unroll_push(t.endpoints["unrolls"], keys.for_actor(1))
         member.send_multipart(wire.encode(_unroll(0, actor_id=1)))
         got = _receive_until(t, lambda g: len(g) > 0)
         assert len(got) == 1 and got[0].rewards.shape == (T, N)
@@ -88,7 +95,7 @@ def test_weights_reach_members_only() -> None:
     keys = RunKeys.generate()
     t = _transport(keys=keys)
     try:
-        member = sockets.connect_weights_sub(t.endpoints["weights_pub"], keys.for_actors())
+        member = sockets.connect_weights_sub(t.endpoints["weights_pub"], keys.for_actor(0))
         stranger = zmq.Context.instance().socket(zmq.SUB)
         stranger.setsockopt(zmq.SUBSCRIBE, b"")
         stranger.setsockopt(zmq.LINGER, 0)
@@ -114,7 +121,7 @@ def test_the_sampler_takes_state_changes_from_the_learner_only() -> None:
     keys = RunKeys.generate()
     space = ParamSpace(("a",), (0.0,), (1.0,), (0.5,))
     service = SamplerService(SamplerConfig(n_mcmc=64, n_chains=4, burn_in=4), space, keys=keys.for_sampler())
-    actor = SamplerClient(service.endpoint, timeout_s=0.5, retries=1, keys=keys.for_actors(), role=ACTOR)
+    actor = SamplerClient(service.endpoint, timeout_s=0.5, retries=1, keys=keys.for_actor(0), role=ACTOR)
     learner = SamplerClient(service.endpoint, timeout_s=0.5, retries=1, keys=keys, role=LEARNER)
     stranger = SamplerClient(service.endpoint, timeout_s=0.3, retries=1)
     results = {}

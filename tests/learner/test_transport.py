@@ -236,7 +236,8 @@ def test_snapshot_service_answers_garbage_with_errors_and_serves_weights():
 class LossyProxy:
     """PULL (actors connect here) -> PUSH (to the learner's PULL), on 127.0.0.1, dropping every
     `every`-th unroll; heartbeats and everything else pass. With the run's CURVE keys it is a
-    member on both sides (a server to the actors, an actor to the learner)."""
+    member on both sides (a server to the actors; to the learner, each actor under its own key,
+    the only one the learner takes that actor's messages under)."""
 
     def __init__(self, learner_endpoint: str, every: int, keys=None):
         self.every = every
@@ -250,10 +251,8 @@ class LossyProxy:
         self.front.setsockopt(zmq.LINGER, 0)
         port = self.front.bind_to_random_port("tcp://127.0.0.1")
         self.endpoint = f"tcp://127.0.0.1:{port}"
-        self.back = ctx.socket(zmq.PUSH)
-        curve_keys.make_client(self.back, keys.for_actors() if keys is not None else None, curve_keys.ACTOR)
-        self.back.setsockopt(zmq.LINGER, 2000)
-        self.back.connect(learner_endpoint)
+        self.keys, self.learner_endpoint = keys, learner_endpoint
+        self.backs: dict[int, zmq.Socket] = {}
         self._stop = threading.Event()
         self.thread = threading.Thread(target=self._run, name="lossy-proxy", daemon=True)
         self.thread.start()
@@ -271,14 +270,24 @@ class LossyProxy:
                     self.dropped += 1
                     self.dropped_seqs.append((header["f"]["actor_id"], header["f"]["seq"]))
                     continue
-            self.back.send_multipart(frames)
+            self._back(header["f"]["actor_id"]).send_multipart(frames)
             self.forwarded += 1
+
+    def _back(self, actor_id: int) -> zmq.Socket:
+        if actor_id not in self.backs:
+            sock = zmq.Context.instance().socket(zmq.PUSH)
+            curve_keys.make_client(sock, self.keys.for_actor(actor_id) if self.keys is not None else None, curve_keys.ACTOR)
+            sock.setsockopt(zmq.LINGER, 2000)
+            sock.connect(self.learner_endpoint)
+            self.backs[actor_id] = sock
+        return self.backs[actor_id]
 
     def close(self) -> None:
         self._stop.set()
         self.thread.join(timeout=10)
         self.front.close()
-        self.back.close()
+        for sock in self.backs.values():
+            sock.close()
 
 
 def _ledger_total(run_dir: Path) -> dict[int, int]:

@@ -54,6 +54,7 @@ from common.motion.mirror import MIRROR_SUFFIX, mirrored_id, source_id
 from common.motion.reference import CharacterMotion
 from common.params import ParamSpace
 from common.tasks.base import _DIVERGENCE_WARNINGS, TaskConfig, diverged_step
+from common.tasks.content_bounds import OBS_MAX_ABS_LIMIT, ContentBounds
 from common.tasks.executor import rewards as rw
 from common.tasks.executor.observations import BodyKin, agent_features, kinematics_from_arrays, observation_of
 from common.tasks.executor.schedulers.base import DatasetScheduler, Scheduler, TargetFrame
@@ -287,6 +288,15 @@ class ExecutorEnv:
     @staticmethod
     def clips(cfg: TaskConfig) -> list[tuple[str, str]]:
         return executor_clips(cfg)
+
+    @staticmethod
+    def content_bounds(cfg: TaskConfig) -> ContentBounds:
+        """A step's reward range (`rewards.reward_range`): UniCon's weighted sum of five terms in
+        (0, 1] is in [0, sum w], less at most the largest action-rate penalty."""
+        ex = cfg.executor
+        lo, hi = rw.reward_range(ex.reward_weights, ex.action_rate_weight, ex.actuation)
+        return ContentBounds(reward_min=lo, reward_max=hi,
+                             obs_max_abs=OBS_MAX_ABS_LIMIT, episode_steps=cfg.episode_steps)
 
     def __init__(self, cfg: TaskConfig, seed: int = 0, like: ExecutorEnv | None = None):
         """`like`: an environment of the same `cfg` whose compiled model (unless projectiles make

@@ -35,6 +35,7 @@ from common.characters.morph import lift_out_of_floor
 from common.characters.operator import gains_follow_torque_limits
 from common.params import ParamSpace
 from common.tasks.base import TaskConfig, diverged_step, step_physics
+from common.tasks.content_bounds import OBS_MAX_ABS_LIMIT, ContentBounds
 from common.tasks.observations import JointLayout, heading, quat_to_mat, root_frame_features, yaw_matrix
 from common.tasks.shape import references, rewards
 from common.tasks.shape.stroke_model import StrokeModel
@@ -105,6 +106,13 @@ class ImitateEnv:
         preset = character_preset(cfg)
         clip_id = cfg.imitate.clip_id or references.DEFAULT_CLIPS[preset]
         return [(clip_id, "root/locomotion")]
+
+    @staticmethod
+    def content_bounds(cfg: TaskConfig) -> ContentBounds:
+        """R = sum of w_k bells in (0, 1] with w_k >= 0 (`rewards.reward_terms`): in [0, sum w]."""
+        weights = tuple(cfg.imitate.reward_weights) or rewards.WEIGHTS[character_preset(cfg)]
+        return ContentBounds(reward_min=0.0, reward_max=float(sum(weights)), obs_max_abs=OBS_MAX_ABS_LIMIT,
+                             episode_steps=cfg.episode_steps)
 
     def __init__(self, cfg: TaskConfig, seed: int = 0):
         self.cfg = cfg
