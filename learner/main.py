@@ -70,9 +70,14 @@ def parse(argv: list[str]) -> RunConfig:
 def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     cfg = parse(list(sys.argv[1:] if argv is None else argv))
+    from learner.signals import Interrupted  # lazy: with train below
     from learner.train import train  # lazy: start-up time of --help (tensorboard, the actors, the sampler)
 
-    return train(cfg)
+    try:
+        return train(cfg)
+    except Interrupted:  # a repeated signal while starting, or while cleaning up after the final checkpoint
+        print("[morphmimic] interrupted while starting or cleaning up; log.txt names the last checkpoint", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":
