@@ -54,12 +54,20 @@ def _bind(sock: zmq.Socket, address: str) -> str:
     return sock.getsockopt_string(zmq.LAST_ENDPOINT)
 
 
-def bind_unroll_pull(address: str, keys: RunKeys | None = None) -> tuple[zmq.Socket, str]:
+UNROLL_MAX_BYTES = 256 * 1024 * 1024
+"""Largest unroll-channel message the learner takes. libzmq drops the connection of a peer that
+sends more: the message is lost, counted only as that connection's end (`common.socket_events`)."""
+
+
+def bind_unroll_pull(address: str, keys: RunKeys | None = None,
+                     max_msg_bytes: int = UNROLL_MAX_BYTES) -> tuple[zmq.Socket, str]:
     """Learner side of the unroll stream."""
+    if not 1 <= max_msg_bytes <= UNROLL_MAX_BYTES:
+        raise ValueError(f"max_msg_bytes = {max_msg_bytes}; allowed: 1 .. {UNROLL_MAX_BYTES}")
     sock = context().socket(zmq.PULL)
     curve_keys.make_server(sock, keys)
     sock.setsockopt(zmq.RCVHWM, UNROLL_RECV_HWM)
-    sock.setsockopt(zmq.MAXMSGSIZE, 256 * 1024 * 1024)  # a larger frame drops that peer's connection
+    sock.setsockopt(zmq.MAXMSGSIZE, max_msg_bytes)  # a larger frame drops that peer's connection
     sock.setsockopt(zmq.LINGER, LINGER_MS)
     return sock, _bind(sock, address)
 

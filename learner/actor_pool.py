@@ -26,9 +26,9 @@ class ActorPool(Protocol):
 
     def alive(self) -> int: ...
 
-    def stats(self) -> list[dict]: ...
+    def stats(self, timeout_s: float = 30.0) -> list[dict]: ...
 
-    def stop(self) -> None: ...
+    def stop(self, timeout_s: float = 15.0) -> None: ...
 
 
 class SerialActorPool:
@@ -39,6 +39,8 @@ class SerialActorPool:
                          keys=_own_keys(keys, i))
             for i in range(cfg.actors.num_actors)
         ]
+        self.restarts = 0
+        """Always 0 here (a failing actor fails the process); carries a resumed run's count."""
 
     def pump(self) -> None:
         """Each actor takes new weights (if any) and sends one unroll."""
@@ -48,10 +50,10 @@ class SerialActorPool:
     def alive(self) -> int:
         return len(self.actors)
 
-    def stats(self) -> list[dict]:
+    def stats(self, timeout_s: float = 30.0) -> list[dict]:
         return [a.stats() for a in self.actors]
 
-    def stop(self) -> None:
+    def stop(self, timeout_s: float = 15.0) -> None:
         for actor in self.actors:
             actor.close()
 
@@ -76,13 +78,18 @@ class RayActorPool:
         ]
         self.runs = {i: h.run.remote() for i, h in enumerate(self.handles)}
         self.restarts = 0
+        """Actor failures the pool recovered from: one per failure, however many of the loop's
+        resubmissions fail while Ray brings the process back (one kill used to count 3)."""
         self.dead: set[int] = set()
+        self.recovering: dict[int, object] = {}
+        """Actors whose process failed, and the probe (`stats`) whose answer shows it is back."""
 
     def pump(self) -> None:
         """Resubmit the loop of an actor whose `run` ended by a crash. Ray restarts the process
         (up to `actor_max_restarts` times, -1 = always, on any node with a free
         `morphmimic_rollout`); the loop call itself must be made again, and Ray holds it until
         the actor is back, so a lost node's actors return when capacity does."""
+        self._check_recovering()
         refs = list(self.runs.values())
         done, _ = self.ray.wait(refs, num_returns=len(refs), timeout=0)
         for ref in done:
@@ -96,10 +103,27 @@ class RayActorPool:
                     log.error("rollout actor %d is dead and will not restart (%s)", i, type(exc).__name__)
                     self.dead.add(i)
                     del self.runs[i]
+                    self.recovering.pop(i, None)
                     continue
-                self.restarts += 1
-                log.warning("rollout actor %d failed (%s); resubmitting its loop", i, type(exc).__name__)
+                if i not in self.recovering:  # NOTE: loops resubmitted before Ray restarted it fail too: not counted again
+                    self.restarts += 1
+                    log.warning("rollout actor %d failed (%s); resubmitting its loop", i, type(exc).__name__)
+                self.recovering[i] = self.handles[i].stats.remote()
                 self.runs[i] = self.handles[i].run.remote()
+
+    def _check_recovering(self) -> None:
+        """An actor whose probe answered is back: its next failure is a new one."""
+        if not self.recovering:
+            return
+        done, _ = self.ray.wait(list(self.recovering.values()), num_returns=len(self.recovering), timeout=0)
+        for ref in done:
+            i = next(k for k, v in self.recovering.items() if v == ref)
+            try:
+                self.ray.get(ref)
+            except self.ray.exceptions.RayError:  # not back yet: probe again
+                self.recovering[i] = self.handles[i].stats.remote()
+            else:
+                del self.recovering[i]
 
     def _gone_for_good(self, i: int) -> bool:
         try:
@@ -114,22 +138,23 @@ class RayActorPool:
         """Actors whose loop is submitted (running, or waiting for Ray to restart them)."""
         return len(self.runs)
 
-    def stats(self) -> list[dict]:
+    def stats(self, timeout_s: float = 30.0) -> list[dict]:
         refs = [self.handles[i].stats.remote() for i in self.runs]
         try:
-            return self.ray.get(refs, timeout=30)
+            return self.ray.get(refs, timeout=timeout_s)
         except self.ray.exceptions.RayError as exc:
             log.warning("could not read actor stats: %s", exc)
             return []
 
-    def stop(self) -> None:
+    def stop(self, timeout_s: float = 15.0) -> None:
+        """Tell every actor to stop, wait up to `timeout_s` for their loops, then kill them."""
         for h in self.handles:
             try:
                 h.stop.remote()
             except self.ray.exceptions.RayError:
                 pass
         try:
-            self.ray.wait(list(self.runs.values()), num_returns=len(self.runs), timeout=15)
+            self.ray.wait(list(self.runs.values()), num_returns=len(self.runs), timeout=timeout_s)
         except self.ray.exceptions.RayError:
             pass
         for h in self.handles:

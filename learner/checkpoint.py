@@ -22,6 +22,7 @@ import torch
 
 from common.policy import GaussianPolicy
 from common.tasks.executor.env import labelled_clips
+from learner import checkpoint_check
 from learner.config import RunConfig
 
 log = logging.getLogger(__name__)
@@ -65,14 +66,19 @@ def save(ckpt_dir: Path, iteration: int, state: dict[str, Any], keep: int) -> Pa
         torch.save({"format": FORMAT, **state}, f)
         f.flush()
         os.fsync(f.fileno())
-    if final.exists():
-        shutil.rmtree(final)
+    replaced = None
+    if final.exists():  # the same iteration again (the final save at stop): swap, never a moment without it
+        replaced = ckpt_dir / f".old-{iteration:08d}-{os.getpid()}"
+        shutil.rmtree(replaced, ignore_errors=True)
+        os.replace(final, replaced)
     os.replace(tmp, final)
     dir_fd = os.open(ckpt_dir, os.O_RDONLY)
     try:
         os.fsync(dir_fd)
     finally:
         os.close(dir_fd)
+    if replaced is not None:
+        shutil.rmtree(replaced, ignore_errors=True)
     for old in list_checkpoints(ckpt_dir)[:-keep] if keep > 0 else []:
         shutil.rmtree(old, ignore_errors=True)
     return final
@@ -86,7 +92,8 @@ def list_checkpoints(ckpt_dir: Path) -> list[Path]:
 
 
 def load(path: Path) -> dict[str, Any]:
-    """Load one checkpoint directory (or its state.pt) with weights_only=True."""
+    """Load one checkpoint directory (or its state.pt) with weights_only=True, and check it
+    (`checkpoint_check.problem`): a non-finite tensor or a mistyped field is a `CheckpointError`."""
     file = path / FILE if path.is_dir() else path
     try:
         state = torch.load(file, weights_only=True, map_location="cpu")
@@ -95,17 +102,30 @@ def load(path: Path) -> dict[str, Any]:
     if not isinstance(state, dict) or state.get("format") != FORMAT:
         got = state.get("format") if isinstance(state, dict) else type(state).__name__
         raise CheckpointError(f"checkpoint {file} has format {got!r}; this version reads format {FORMAT}")
+    problem = checkpoint_check.problem(state)
+    if problem:
+        raise CheckpointError(f"checkpoint {file} is refused: {problem}")
     return state
 
 
-def load_latest(ckpt_dir: Path) -> tuple[Path, dict[str, Any]] | None:
-    """The newest checkpoint that loads; corrupt ones are reported and skipped."""
+def load_newest_good(ckpt_dir: Path) -> tuple[tuple[Path, dict[str, Any]] | None, list[str]]:
+    """The newest checkpoint that loads and passes the checks, and why each newer one was
+    refused (one line each, newest first); (None, reasons) when none is good."""
+    refused: list[str] = []
     for path in reversed(list_checkpoints(ckpt_dir)):
         try:
-            return path, load(path)
+            return (path, load(path)), refused
         except CheckpointError as exc:
-            log.error("%s; falling back to the previous checkpoint", exc)
-    return None
+            refused.append(str(exc))
+    return None, refused
+
+
+def load_latest(ckpt_dir: Path) -> tuple[Path, dict[str, Any]] | None:
+    """The newest checkpoint that loads; corrupt or refused ones are logged and skipped."""
+    found, refused = load_newest_good(ckpt_dir)
+    for why in refused:
+        log.error("%s; falling back to the previous checkpoint", why)
+    return found
 
 
 @dataclass(frozen=True)

@@ -40,6 +40,14 @@ class HealthMonitor:
     def alive(self) -> int:
         return len(self.last_seen) - len(self.stalled)
 
+    def state_dict(self) -> dict[str, int]:
+        """The cumulative counts a resumed run continues from (who is stalled now is not kept)."""
+        return {"stalls": self.stalls, "readmissions": self.readmissions}
+
+    def load_state_dict(self, state: dict[str, int]) -> None:
+        self.stalls = int(state.get("stalls", 0))
+        self.readmissions = int(state.get("readmissions", 0))
+
     def metrics(self) -> dict[str, float]:
         return {
             "health/actors_reporting": float(self.alive()),

@@ -82,9 +82,14 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if run_status.is_new(cfg) and not cfg.quiet:
         print(first_run_line(scan_flag(argv, "--preset", DEFAULT_PRESET)[0]), flush=True)
+    from learner.signals import Interrupted  # lazy: with train below
     from learner.train import train  # lazy: start-up time of --help (tensorboard, the actors, the sampler)
 
-    return train(cfg)
+    try:
+        return train(cfg)
+    except Interrupted:  # a repeated signal while starting, or while cleaning up after the final checkpoint
+        print("[morphmimic] interrupted while starting or cleaning up; log.txt names the last checkpoint", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

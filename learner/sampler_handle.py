@@ -5,6 +5,9 @@ never the run."""
 
 from __future__ import annotations
 
+import collections
+import contextlib
+import dataclasses
 import logging
 import threading
 import time
@@ -27,10 +30,34 @@ from sampler.config import SamplerConfig
 
 log = logging.getLogger(__name__)
 
+MAX_UNSENT_PAIRS = 65536
+"""Value pairs kept for a sampler that does not answer (16 iterations at the default 4096 per
+iteration); the oldest beyond it are dropped and counted."""
+QUICK_TIMEOUT_S = 1.0
+"""The one try a sampler call gets inside `quick()` (the stop path)."""
 RETRY_AFTER_S = 10.0
 """After the sampler failed to answer, the learner leaves it alone this long."""
 LEARNER_TIMEOUT_S = 3.0
 """A tick may fit Vm and refill the buffer (tenths of a second; more on a loaded machine)."""
+
+
+def pairs_taken_of(state: dict[str, Any]) -> int:
+    """`ShapeSampler.pairs_taken` of a saved sampler state (older states: fitted + pending)."""
+    meta = state["meta"]
+    if "pairs_taken" in meta:
+        return int(meta["pairs_taken"])
+    return int(meta["vm"]["pairs_seen"]) + len(state["arrays"].get("pending_values", ()))
+
+
+@dataclass(frozen=True)
+class Report:
+    """One iteration's value report, kept until the sampler takes it (resent with the same id)."""
+
+    report_id: str
+    params: np.ndarray
+    values: np.ndarray
+    clips: tuple
+    failures: tuple = ((), ())
 
 
 @dataclass
@@ -50,7 +77,18 @@ class SamplerHandle:
     saved_state: dict[str, Any] | None = None
     """The sampler state of the newest checkpoint: restored into a restarted sampler."""
     restores: int = 0
-    pairs_seen: float = 0.0
+    """Restarts after which the sampler had its state back (its own file, or the checkpoint's)."""
+    restarts: int = 0
+    """Sampler restarts seen (its start time changed between two answers)."""
+    started_seen: float = 0.0
+    taken_expected: float = 0.0
+    """The sampler's `vm/pairs_taken` as the learner expects it: its last answer plus the pairs delivered since."""
+    pairs_delivered: int = 0
+    pairs_lost: int = 0
+    """Value pairs that never reached a fit: dropped from the full queue, refused, held by a
+    sampler that restarted before saving them, or still queued at stop."""
+    unsent: collections.deque = dataclasses.field(default_factory=collections.deque)
+    """Reports the sampler did not take yet, oldest first (at most `MAX_UNSENT_PAIRS` pairs)."""
     down_until: float = 0.0
 
     @staticmethod
@@ -100,31 +138,140 @@ class SamplerHandle:
     def report_and_tick(self, params: np.ndarray, values: np.ndarray, iteration: int,
                         clips: tuple[list[str], list[int], list[int]] = ([], [], []),
                         failures: tuple[list[str], list[float]] = ([], [])) -> dict[str, float]:
-        """Report the value pairs, `clips` (the training segments per clip since the last call:
-        ids, segments, tracked) and `failures` (clip ids and clip times of the failed segments,
-        sent only when the sampler keeps time bins), then tick. Only clips the sampler draws are
-        sent; the sampler checks every time against its clip."""
+        """Queue the value pairs, `clips` (the training segments per clip since the last call:
+        ids, segments, tracked; only clips the sampler draws are sent) and `failures` (clip ids
+        and clip times of the failed segments, sent only when the sampler keeps time bins; the
+        sampler checks every time against its clip), deliver what is queued, then tick. Pairs
+        the sampler cannot take now wait in a bounded queue (`MAX_UNSENT_PAIRS`) and go with the
+        next call that reaches it; the oldest are dropped beyond the bound and counted in
+        `pairs_lost`, as are pairs a restarted sampler no longer holds."""
         known = {cid for cid, _ in self.clips}
         keep = [i for i, cid in enumerate(clips[0]) if cid in known]
         clips = tuple([part[i] for i in keep] for part in clips)
         keep = [i for i, cid in enumerate(failures[0]) if cid in known] if self.config.time_bin_s > 0 else []
         failures = tuple([part[i] for i in keep] for part in failures)
-        self._call("report", lambda: self.client.report(params, values, clips, failures), None)
+        if len(values):
+            self._queue(Report(self.client.new_report_id(), np.asarray(params), np.asarray(values), clips, failures))
+        self._deliver()
         stats = self._call("tick", lambda: self.client.tick(iteration), {})
-        restarted = False
         if stats:  # no answer says nothing about a restart
-            seen = stats.get("vm/pairs_seen", 0.0)
-            restarted = seen < self.pairs_seen  # a live sampler's count never decreases
-            self.pairs_seen = seen if restarted else max(self.pairs_seen, seen)
-        if restarted and self.saved_state is not None:
-            # A restarted sampler came back empty: give it the checkpointed state, then tick again.
-            log.warning("sampler restarted without its state; restoring the last checkpoint's")
-            if self._call("set_state", lambda: self.client.set_state(self.saved_state), False) is None:
-                self.restores += 1
-                stats = self._call("tick", lambda: self.client.tick(iteration), {})
+            stats = self._after_stats(stats, iteration)
         out = {f"sampler/{k}": float(v) for k, v in stats.items()}
         out["sampler/learner_call_failures"] = float(self.failures)
         return out
+
+    def _queue(self, report: "Report") -> None:
+        self.unsent.append(report)
+        while sum(len(r.values) for r in self.unsent) > MAX_UNSENT_PAIRS:
+            dropped = self.unsent.popleft()
+            self.pairs_lost += len(dropped.values)
+            log.warning("sampler unreachable: %d value pairs dropped from the full queue (lost, counted)", len(dropped.values))
+
+    def _deliver(self) -> None:
+        """Send the queued reports, oldest first, until one cannot go (it stays queued)."""
+        while self.unsent and time.monotonic() >= self.down_until:
+            r = self.unsent[0]
+            try:
+                self.client.report(r.params, r.values, r.clips, r.failures, report_id=r.report_id)
+            except ServiceUnavailable as exc:
+                self.failures += 1
+                self.down_until = time.monotonic() + RETRY_AFTER_S
+                log.warning("sampler report failed (%s); %d pairs wait for it", exc, self.unsent_pairs())
+                return
+            except WireError as exc:  # refused for its content: sending it again cannot help
+                self.failures += 1
+                self.pairs_lost += len(r.values)
+                log.warning("sampler refused a value report (%s); its %d pairs are lost (counted)", exc, len(r.values))
+            else:
+                self.pairs_delivered += len(r.values)
+                self.taken_expected += len(r.values)
+            self.unsent.popleft()
+
+    def unsent_pairs(self) -> int:
+        return sum(len(r.values) for r in self.unsent)
+
+    def _after_stats(self, stats: dict[str, float], iteration: int) -> dict[str, float]:
+        """Notice a sampler that restarted since the last answer (its start time changed): give it
+        the checkpoint's state if that holds more than it came back with, and count the pairs it
+        no longer holds."""
+        started = stats.get("state/started_unix_s", 0.0)
+        if self.started_seen and started != self.started_seen:
+            self.restarts += 1
+            own = bool(stats.get("state/restored", 0.0))
+            if self.saved_state is not None and stats.get("vm/pairs_taken", 0.0) < pairs_taken_of(self.saved_state):
+                # It came back with less than the last checkpoint: give it the checkpoint's state, tick again.
+                log.warning("sampler restarted with less than the checkpoint's state; restoring the checkpoint's")
+                if self._call("set_state", lambda: self.client.set_state(self.saved_state), False) is None:
+                    self.restores += 1
+                    stats = self._call("tick", lambda: self.client.tick(iteration), {}) or stats
+            elif own:
+                self.restores += 1
+                log.warning("sampler restarted and restored its own state file")
+        if stats.get("state/started_unix_s"):
+            self.started_seen = stats["state/started_unix_s"]
+        taken = stats.get("vm/pairs_taken")
+        if taken is not None:
+            if taken < self.taken_expected:  # a restart (or a resume) lost what it had not saved
+                lost = int(self.taken_expected - taken)
+                self.pairs_lost += lost
+                log.warning("sampler holds %d value pairs fewer than it took (its state was older): lost, counted", lost)
+            self.taken_expected = taken
+        return stats
+
+    def counters(self) -> dict[str, float]:
+        """The learner-side sampler counters, as the run logs them under `faults/` and `sampler/`."""
+        return {
+            "faults/sampler_restarts": float(self.restarts),
+            "faults/sampler_restores": float(self.restores),
+            "faults/value_pairs_lost": float(self.pairs_lost),
+            "faults/value_pairs_queued": float(self.unsent_pairs()),
+            "sampler/value_pairs_delivered": float(self.pairs_delivered),
+        }
+
+    def state_dict(self) -> dict[str, int]:
+        """Counters a resumed run continues from (checkpointed beside the sampler's own state)."""
+        return {"failures": self.failures, "restarts": self.restarts, "restores": self.restores,
+                "pairs_delivered": self.pairs_delivered, "pairs_lost": self.pairs_lost + self.unsent_pairs(),
+                "taken_expected": int(self.taken_expected)}
+
+    def load_state_dict(self, state: dict[str, Any], taken_since: float = 0.0) -> None:
+        """Continue the counters of `state_dict()`. `taken_since`: the sampler's pairs taken as the
+        learner last saw it (the progress file), when newer than the checkpoint: a sampler holding
+        fewer at its first answer lost the difference."""
+        self.failures = int(state.get("failures", 0))
+        self.restarts = int(state.get("restarts", 0))
+        self.restores = int(state.get("restores", 0))
+        self.pairs_delivered = int(state.get("pairs_delivered", 0))
+        self.pairs_lost = int(state.get("pairs_lost", 0))
+        self.taken_expected = max(float(state.get("taken_expected", 0)), float(taken_since))
+
+    def restore_at_start(self, state: dict[str, Any]) -> str:
+        """A resumed run's sampler: keep the state it restored from its own file when that holds
+        at least the checkpoint's pairs, else send it the checkpoint's. Returns what was done."""
+        self.saved_state = state
+        stats = self._call("stats", self.client.stats, {})
+        own = stats.get("vm/pairs_taken", -1.0)
+        if stats.get("state/restored") and own >= pairs_taken_of(state):
+            return f"sampler kept its own state file ({int(own)} pairs taken; the checkpoint's has {pairs_taken_of(state)})"
+        self.client.set_state(state)
+        return f"sampler restored from the checkpoint ({pairs_taken_of(state)} pairs taken)"
+
+    @contextlib.contextmanager
+    def quick(self):
+        """Calls inside give the sampler one try of `QUICK_TIMEOUT_S` (the stop path: a signal
+        must end the run within seconds, whatever the sampler is doing)."""
+        rpc = self.client.rpc
+        saved = rpc.timeout_ms, rpc.retries
+        rpc.timeout_ms, rpc.retries = int(QUICK_TIMEOUT_S * 1000), 1
+        try:
+            yield self
+        finally:
+            rpc.timeout_ms, rpc.retries = saved
+
+    def flush(self) -> None:
+        """At stop: deliver what is queued if the sampler answers now; what stays is counted lost
+        (`state_dict` adds it)."""
+        self._deliver()
 
     def state(self) -> dict[str, Any] | None:
         return self._call("get_state", self.client.get_state, None)

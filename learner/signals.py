@@ -1,17 +1,36 @@
-"""Ctrl-C and SIGTERM: finish the iteration, checkpoint, stop everything, exit 0."""
+"""Ctrl-C and SIGTERM: finish the iteration, checkpoint, stop everything, exit 0.
+
+The first signal asks the loop to stop; every wait of the loop is bounded (the receive loop,
+the sampler's timeouts, the drain at stop), so the checkpoint follows within seconds whatever
+the sockets are doing. A second signal cuts the iteration short with `Interrupted`, which the
+training loop answers with an immediate checkpoint (never mid-write: while one is being
+written, a further signal is only reported). Before, a second signal raised KeyboardInterrupt
+and exited without any checkpoint.
+"""
 
 from __future__ import annotations
 
 import signal
 import threading
+import time
+
+
+class Interrupted(KeyboardInterrupt):
+    """A second stop signal: the training loop checkpoints at once and skips the drain."""
 
 
 class StopFlag:
-    """Set by SIGINT/SIGTERM; a second signal forces an immediate KeyboardInterrupt."""
+    """Set by SIGINT/SIGTERM (or `request`); a second signal raises `Interrupted`."""
 
     def __init__(self) -> None:
         self.event = threading.Event()
         self.previous: dict[int, object] = {}
+        self.signal_name = ""
+        """The signal that stopped the run ("" when a hook or the budget did)."""
+        self.at = 0.0
+        """`time.monotonic()` of the first stop request."""
+        self.saving = False
+        """True while a checkpoint is written: a signal then must not cut it in half."""
 
     def install(self) -> None:
         if threading.current_thread() is not threading.main_thread():
@@ -20,13 +39,22 @@ class StopFlag:
             self.previous[sig] = signal.signal(sig, self._handle)
 
     def _handle(self, signum, frame) -> None:
+        name = signal.Signals(signum).name
         if self.event.is_set():
-            raise KeyboardInterrupt
-        print(f"\n[morphmimic] {signal.Signals(signum).name}: checkpointing and stopping (again to force)", flush=True)
+            if self.saving:
+                print(f"\n[morphmimic] {name}: the checkpoint is being written; stopping right after it", flush=True)
+                return
+            print(f"\n[morphmimic] {name} again: checkpointing now, skipping the drain", flush=True)
+            raise Interrupted
+        print(f"\n[morphmimic] {name}: checkpointing and stopping (again to hurry)", flush=True)
+        self.signal_name = name
+        self.at = time.monotonic()
         self.event.set()
 
     def request(self) -> None:
         """Stop the run as Ctrl-C would (for hooks and benchmarks that decide to end it)."""
+        if not self.event.is_set():
+            self.at = time.monotonic()
         self.event.set()
 
     def restore(self) -> None:

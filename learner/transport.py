@@ -31,6 +31,7 @@ import zmq
 from common import sockets, wire
 from common.curve_keys import RefusalCounter, RunKeys, actor_user_id, role_of
 from common.rpc import RouterServer
+from common.socket_events import ConnectionEvents
 from learner.unroll_bounds import UnrollBounds
 
 log = logging.getLogger(__name__)
@@ -44,7 +45,7 @@ unrolls the codec refused; a larger jump is refused, not counted as lost unrolls
 class LearnerTransport:
     def __init__(self, host: str, obs_dim: int, act_dim: int, n_params: int, port_base: int = 0, *,
                  unroll_length: int, envs_per_actor: int, num_actors: int, keys: RunKeys | None = None,
-                 bounds: UnrollBounds | None = None):
+                 bounds: UnrollBounds | None = None, max_msg_bytes: int = sockets.UNROLL_MAX_BYTES):
         """`port_base` 0 binds free ports; else unrolls on port_base, weights PUB on +1, snapshots on +2.
 
         An unroll must be `[unroll_length, envs_per_actor, ...]` with these obs/act/param sizes,
@@ -53,13 +54,19 @@ class LearnerTransport:
         keys; with them every socket admits only this run's clients, a peer the handshake
         refuses is counted as `rejected/auth_*` (`common.curve_keys`), and an actor's unrolls and
         heartbeats are taken only under its own key (`rejected/wrong_actor_key`). `bounds`: the
-        task's content bounds; an unroll outside them is dropped whole (`rejected/bounds_*`)."""
+        task's content bounds; an unroll outside them is dropped whole (`rejected/bounds_*`).
+        `max_msg_bytes`: the largest unroll-channel message libzmq takes (larger ones drop the
+        peer's connection)."""
         addr = lambda i: f"tcp://{host}:{port_base + i}" if port_base else f"tcp://{host}"  # noqa: E731
-        self.pull, unrolls = sockets.bind_unroll_pull(addr(0), keys)
+        self.pull, unrolls = sockets.bind_unroll_pull(addr(0), keys, max_msg_bytes)
         self.pub, weights_pub = sockets.bind_weights_pub(addr(1), keys)
         router, weights_router = sockets.bind_router(addr(2), keys)
-        self.refusals = [RefusalCounter(s) for s in (self.pull, self.pub)] if keys is not None else []
-        """Handshakes refused on the PULL and PUB sockets (the ROUTER's are in `snapshots`)."""
+        self.refusals = [RefusalCounter(self.pub)] if keys is not None else []
+        """Handshakes refused on the PUB socket (the PULL's are in `connections`, the ROUTER's in `snapshots`)."""
+        self.connections = ConnectionEvents(self.pull, with_refusals=keys is not None)
+        """The PULL's refused handshakes (`rejected/auth_*`) and ended connections
+        (`disconnects`): an actor that stopped or restarted, or a peer libzmq dropped for a
+        message over `max_msg_bytes`, which would otherwise vanish without a trace."""
         self.endpoints = {"unrolls": unrolls, "weights_pub": weights_pub, "weights_router": weights_router}
         self.snapshots = RouterServer(router, self._on_request, name="weights")
         self.dims = {"T": unroll_length, "N": envs_per_actor, "obs_dim": obs_dim, "act_dim": act_dim, "n_params": n_params}
@@ -83,6 +90,9 @@ class LearnerTransport:
         """Valid unrolls received per actor."""
         self.sampler_outages: dict[int, int] = {}
         """Latest cumulative sampler-outage count each actor reported."""
+        self.sampler_outages_base = 0
+        """Outages of actor processes that have since restarted (their count began again at 0)
+        and of the sessions before a resume: `sampler_outages_total` adds it."""
         self.last_seen: dict[int, float] = {}
         """Known actors only: a message from an id outside the configuration is rejected first."""
         self.finals: dict[int, int] = {}
@@ -122,15 +132,19 @@ class LearnerTransport:
         out: list[wire.UnrollMsg] = []
         for refusals in self.refusals:
             refusals.poll(self.counters, prefix="rejected/")
+        self.connections.poll(self.counters)
+        deadline = time.monotonic() + timeout_ms / 1000
         events = dict(self.poller.poll(timeout_ms))
         while events:
             if self.snapshots.sock in events:
                 self.snapshots.serve_pending(0)
             if self.pull in events:
                 out += self._read(policy_version, max_policy_lag, 256)
-            events = dict(self.poller.poll(0))
-            if out:
+            # NOTE: bounded by the deadline too: a peer that floods requests would otherwise keep
+            # `events` set for ever, and the loop's caller could never see a stop signal.
+            if out or time.monotonic() >= deadline:
                 break
+            events = dict(self.poller.poll(0))
         return out
 
     def _read(self, policy_version: int, max_policy_lag: int, limit: int) -> list[wire.UnrollMsg]:
@@ -229,6 +243,9 @@ class LearnerTransport:
         if self.bounds is not None:  # after booking its number: a dropped unroll is no lost unroll
             self.bounds.check(msg)
         self.received[msg.actor_id] += 1
+        before = self.sampler_outages.get(msg.actor_id, 0)
+        if msg.sampler_outages < before:  # a restarted actor process counts from 0 again
+            self.sampler_outages_base += before
         self.sampler_outages[msg.actor_id] = msg.sampler_outages
         self.counters["unrolls_received"] += 1
         self.counters["steps_received"] += int(msg.rewards.size)
@@ -263,17 +280,28 @@ class LearnerTransport:
             self.snapshots.serve_pending(0)
         self.counters["drained_at_stop"] += drained
         self.counters["unused_at_stop"] += drained
+        self.connections.poll(self.counters)
         return drained
 
     def lost(self) -> int:
         """Unrolls numbered by an actor that never arrived (counted sequence gaps)."""
         return self.counters["seq_gap_unrolls"]
 
+    def sampler_outages_total(self) -> int:
+        """Sampler outages the actors counted over the whole run (restarts and resumes included)."""
+        return self.sampler_outages_base + sum(self.sampler_outages.values())
+
     def state_dict(self) -> dict:
-        """What a resumed learner needs to keep its counters where it left off."""
+        """What a resumed learner needs to keep its counters where it left off: every counter
+        family of this transport, the snapshot server's included."""
         return {
             "last_seq": {str(k): int(v) for k, v in self.last_seq.items()},
             "counters": {k: int(v) for k, v in self.counters.items()},
+            "snapshot_rejected_counters": {k: int(v) for k, v in self.snapshots.rejected.items()},
+            "snapshot_dropped_counters": {k: int(v) for k, v in self.snapshots.dropped.items()},
+            "snapshots_served": int(self.snapshots.served),
+            "bytes_received": int(self.bytes_received),
+            "sampler_outages": int(self.sampler_outages_total()),
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -284,10 +312,16 @@ class LearnerTransport:
         self.last_seq, self.numbering, self.refused_at = {}, {}, {}
         self.resumed = True
         self.counters.update(state["counters"])
+        self.snapshots.rejected.update(state.get("snapshot_rejected_counters", {}))
+        self.snapshots.dropped.update(state.get("snapshot_dropped_counters", {}))
+        self.snapshots.served += int(state.get("snapshots_served", 0))
+        self.bytes_received += int(state.get("bytes_received", 0))
+        self.sampler_outages_base += int(state.get("sampler_outages", 0))
 
     def close(self) -> None:
         for refusals in self.refusals:
             refusals.close()
+        self.connections.close()
         for sock in (self.pull, self.pub):
             sock.close(linger=0)
         self.snapshots.close()

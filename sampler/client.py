@@ -51,9 +51,14 @@ class SamplerClient:
         return Draws(params=np.array(reply.params), clip_ids=list(reply.clip_ids),
                      buffer_generation=int(reply.buffer_generation), start_s=list(reply.start_s))
 
+    def new_report_id(self) -> str:
+        """An id unique to one report (this client's random nonce and a counter)."""
+        self._reports += 1
+        return f"{self._nonce}-{self._reports}"
+
     def report(self, params: np.ndarray, values: np.ndarray,
                clips: tuple[Sequence[str], Sequence[int], Sequence[int]] = ((), (), ()),
-               failures: tuple[Sequence[str], Sequence[float]] = ((), ())) -> str:
+               failures: tuple[Sequence[str], Sequence[float]] = ((), ()), report_id: str | None = None) -> str:
         """Send (s_b `[m, d]`, V(s) `[m]`) pairs for the marginal value fit, `clips`: the
         training segments per clip since the last report, (ids, segments, tracked), for adaptive
         clip sampling, and `failures`: (clip ids, clip times in s) of the failed segments, for
@@ -62,11 +67,11 @@ class SamplerClient:
 
         Idempotent: the report carries an id unique to this call (this client's random nonce
         and a counter), and every retry of the call resends it, so the service stores the pairs
-        once even when a reply was lost and the request sent again."""
-        self._reports += 1
+        once even when a reply was lost and the request sent again. A caller that keeps an
+        undelivered report to send later passes the `report_id` it first used (`new_report_id`)."""
         msg = wire.ValueReportMsg(params=np.asarray(params, dtype=np.float32),
                                   values=np.asarray(values, dtype=np.float32).reshape(-1),
-                                  report_id=f"{self._nonce}-{self._reports}",
+                                  report_id=report_id or self.new_report_id(),
                                   clip_ids=[str(c) for c in clips[0]], clip_segments=[int(n) for n in clips[1]],
                                   clip_tracked=[int(t) for t in clips[2]],
                                   fail_clip_ids=[str(c) for c in failures[0]], fail_times_s=[float(t) for t in failures[1]])

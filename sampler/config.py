@@ -90,6 +90,13 @@ class SamplerConfig:
     """Interface the ROUTER binds; "auto" (Ray actor only) = this node's IP for a cluster."""
     port: int = 0
     """TCP port of the ROUTER; 0 = a free port chosen at bind time."""
+    state_dir: str = ""
+    """Where the service keeps its own state file (`sampler/state_file.py`), saved every
+    `state_every_s` and on stop, and restored when it starts again (a killed and restarted
+    sampler comes back as it last saved). Empty: no file; the training process sets
+    `<run>/sampler` when the sampler runs on this machine."""
+    state_every_s: float = 10.0
+    """Seconds between two saves of the state file while requests change the state."""
 
     FLAG_PREFIX: ClassVar[str] = "sampler"
     LIMITS: ClassVar[dict[str, Limit]] = {
@@ -99,7 +106,7 @@ class SamplerConfig:
         "thin": at_least(1), "vbar_floor": above(0), "vm_hidden": at_least(1), "vm_lr": above(0),
         "vbar_rate": between(0, 1, lo_open=True), "vm_fit_steps": at_least(0), "vm_minibatch": at_least(1),
         "max_pending_pairs": at_least(1), "max_draw": at_least(1), "probe_points": at_least(1), "seed": at_least(0),
-        "port": PORT,
+        "port": PORT, "state_every_s": between(0.1, 3600),
     }
     """Allowed values of the numeric fields (`common.config_limits`)."""
 

@@ -21,6 +21,9 @@ Every request is checked by `wire.decode` against its declared types and ranges 
 is an `ErrorMsg` and a count; the service keeps answering.
 
 The socket is used by one thread only (the one running `serve`), so the sampler needs no lock.
+That thread also keeps the service's own state file (`config.state_dir`, `sampler/state_file.py`):
+saved every `state_every_s` while requests change the state and on stop, loaded at start, so a
+killed and restarted service comes back as it last saved instead of empty.
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ from common import sockets, wire
 from common.curve_keys import LEARNER, RunKeys
 from common.params import ParamSpace
 from common.rpc import RouterServer
+from sampler import state_file
 from sampler.config import SamplerConfig
 from sampler.shape_sampler import ShapeSampler
 
@@ -90,7 +94,7 @@ def _check_restored(s: ShapeSampler) -> None:
         raise ValueError(f"sampler state order is not a permutation of the {n} buffer rows")
     if not 0 <= s._cursor <= n:
         raise ValueError(f"sampler state cursor = {s._cursor}; allowed: [0, {n}]")
-    if min(s.generation, s.draws_served, s.last_refill_iteration, s.last_tick + 1) < 0:
+    if min(s.generation, s.draws_served, s.last_refill_iteration, s.last_tick + 1, s.pairs_taken, s.pairs_trimmed) < 0:
         raise ValueError("sampler state counters must not be negative")
     pending = [np.asarray(a) for a in (*s._pending_params, *s._pending_values)]
     if not all(np.isfinite(a).all() for a in pending):
@@ -116,9 +120,16 @@ class SamplerService:
         self.reports: collections.OrderedDict[str, int] = collections.OrderedDict()
         """The `report_id`s of the last REPORT_IDS_KEPT stored reports and their pair counts."""
         self.duplicate_reports = 0
+        self.started_unix_s = time.time()
+        self.restored = False
+        """True when this service began from its own state file (`config.state_dir`)."""
+        self.saves = self.save_failures = 0
+        if config.state_dir:
+            self._restore_own_state()
         sock, self.endpoint = _bind(address or bind_address(config), keys)
         self.server = RouterServer(sock, self._handle, "sampler", dims={"n_params": space.dim},
                                    roles={kind: frozenset({LEARNER}) for kind in LEARNER_ONLY})
+        self._saved_at = (time.monotonic(), self.server.served)
         if self.sampler.clips is not None:
             log.info("sampler: motion balancer over %d clips:\n%s", len(self.sampler.clips.clip_ids),
                      self.sampler.clips.table())
@@ -162,25 +173,71 @@ class SamplerService:
             state = s.state_dict()
             return wire.StateMsg(meta=state["meta"], arrays=state["arrays"])
         if isinstance(msg, wire.StateMsg):
-            restored = copy.deepcopy(s)  # NOTE: load_state_dict is not atomic: fill a copy, swap when sound
-            try:
-                restored.load_state_dict({"meta": msg.meta, "arrays": msg.arrays})
-                _check_restored(restored)
-            except ValueError:
-                raise
-            except Exception as exc:  # noqa: BLE001 - a missing key, a wrong type or shape: all the sender's
-                raise ValueError(f"sampler state lacks or mistypes something ({type(exc).__name__}: {exc}); "
-                                 "send what StateRequestMsg returned") from None
-            self.sampler = restored
-            return wire.OkMsg(info=f"restored generation {restored.generation}")
+            self.sampler = self._restored({"meta": msg.meta, "arrays": msg.arrays})
+            return wire.OkMsg(info=f"restored generation {self.sampler.generation}")
         raise wire.WireError(f"the sampler does not answer {type(msg).KIND!r} messages", "unknown_kind")
+
+    def _restored(self, state: dict[str, Any]) -> ShapeSampler:
+        """A copy of the sampler with `state` loaded and checked; ValueError naming what is wrong.
+        NOTE: load_state_dict is not atomic: fill a copy, swap when sound."""
+        restored = copy.deepcopy(self.sampler)
+        try:
+            restored.load_state_dict(state)
+            _check_restored(restored)
+        except ValueError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - a missing key, a wrong type or shape: all the sender's
+            raise ValueError(f"sampler state lacks or mistypes something ({type(exc).__name__}: {exc}); "
+                             "send what StateRequestMsg returned") from None
+        return restored
+
+    def _restore_own_state(self) -> None:
+        """Load the service's own state file, if `config.state_dir` has one that is sound."""
+        state = state_file.load(self.config.state_dir)
+        if state is None:
+            return
+        try:
+            self.sampler = self._restored(state)
+        except ValueError as exc:
+            log.error("sampler: state file in %s refused (%s); starting without it", self.config.state_dir, exc)
+            return
+        self.restored = True
+        log.info("sampler: restored its own state from %s (generation %d, %d pairs taken)",
+                 state_file.path_in(self.config.state_dir), self.sampler.generation, self.sampler.pairs_taken)
+
+    def save_state(self) -> bool:
+        """Write the state file now (no-op without `config.state_dir`); False if it failed (logged, counted)."""
+        if not self.config.state_dir:
+            return False
+        try:
+            state_file.save(self.config.state_dir, self.sampler.state_dict())
+        except Exception as exc:  # noqa: BLE001 - a full disk must not stop the service
+            self.save_failures += 1
+            log.error("sampler: could not save its state into %s: %s", self.config.state_dir, exc)
+            return False
+        self.saves += 1
+        self._saved_at = (time.monotonic(), self.server.served)
+        return True
+
+    def _save_when_due(self) -> None:
+        """Save when requests were served since the last save and `state_every_s` has passed."""
+        at, served = self._saved_at
+        if self.config.state_dir and self.server.served != served and time.monotonic() - at >= self.config.state_every_s:
+            self.save_state()
 
     def stats(self) -> dict[str, float]:
         """`ShapeSampler.stats()` plus `requests/served`, `requests/rejected` (all kinds),
         `requests/rejected/<kind>` (malformed, version, unknown_kind, nonfinite, invalid, ...) and
-        `requests/replies_dropped/<reason>` (full_pipe, departed, over_backlog)."""
+        `requests/replies_dropped/<reason>` (full_pipe, departed, over_backlog); `state/saves`,
+        `state/save_failures` (the state file), `state/restored` (1: this service began from its
+        own state file) and `state/started_unix_s` (when this service began: a change tells the
+        learner that the sampler restarted)."""
         out = self.sampler.stats()
         out["reports/duplicates"] = float(self.duplicate_reports)
+        out["state/saves"] = float(self.saves)
+        out["state/save_failures"] = float(self.save_failures)
+        out["state/restored"] = float(self.restored)
+        out["state/started_unix_s"] = self.started_unix_s
         out["requests/served"] = float(self.server.served)
         out["requests/rejected"] = float(sum(self.server.rejected.values()))
         for kind, count in sorted(self.server.rejected.items()):
@@ -198,8 +255,12 @@ class SamplerService:
         try:
             while not stop_event.is_set():
                 self.server.serve_pending(poll_ms)
+                self._save_when_due()
         finally:
             self.close()
 
     def close(self) -> None:
+        """Save the state file (with `config.state_dir`), then release the socket."""
+        if not self.server.sock.closed:
+            self.save_state()
         self.server.close()

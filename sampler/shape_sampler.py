@@ -78,6 +78,11 @@ class ShapeSampler:
         """Why the last report's refused failure times were refused (one line each)."""
         self._pending_params: list[np.ndarray] = []
         self._pending_values: list[np.ndarray] = []
+        self.pairs_taken = 0
+        """(params, V) pairs `report` stored, over the sampler's life (kept in its state): the
+        learner compares it with what it delivered to count pairs a restart lost."""
+        self.pairs_trimmed = 0
+        """Stored pairs dropped unfitted because more than `max_pending_pairs` waited for a tick."""
         self.generation = 0
         self.last_tick = -1
         self.last_refill_iteration = 0
@@ -155,6 +160,7 @@ class ShapeSampler:
         params = self.space.validate_batch(params)  # float32 rounding at a bound is accepted and clipped
         self._pending_params.append(params.copy())
         self._pending_values.append(values.copy())
+        self.pairs_taken += params.shape[0]
         self._trim_pending()
         if self.clip_outcomes is not None:
             self.clip_outcomes.add(clip_rows)
@@ -200,6 +206,7 @@ class ShapeSampler:
         total = sum(len(v) for v in self._pending_values)
         while total > self.config.max_pending_pairs and self._pending_values:
             excess = total - self.config.max_pending_pairs
+            self.pairs_trimmed += min(excess, len(self._pending_values[0]))
             if len(self._pending_values[0]) <= excess:
                 total -= len(self._pending_values.pop(0))
                 self._pending_params.pop(0)
@@ -264,7 +271,8 @@ class ShapeSampler:
         vm/min, vm/max, vm/mean      Vm over fixed uniform probe points (value units)
         vm/vbar, vm/temperature      the running average and the |Vbar| floor actually used
         vm/fit_loss, vm/fit_s        last fit's MSE (value units^2) and wall time (s)
-        vm/pairs_seen, vm/pending_pairs
+        vm/pairs_seen, vm/pending_pairs   pairs fitted; stored, waiting for the next tick
+        vm/pairs_taken, vm/pairs_trimmed  pairs stored over the sampler's life; dropped unfitted (bound)
         mcmc/acceptance, mcmc/refill_s   last refill's MH acceptance rate and wall time (s)
         draws/served, iteration
         clips/count, clips/p_min, clips/p_max   draw probabilities (when clips are used)
@@ -287,6 +295,7 @@ class ShapeSampler:
             "vm/vbar": self.vm.vbar, "vm/temperature": self.vm.temperature(self.config.vbar_floor),
             "vm/fit_loss": self.vm.last_loss, "vm/fit_s": self.fit_s,
             "vm/pairs_seen": float(self.vm.pairs_seen), "vm/pending_pairs": float(self.pending_pairs),
+            "vm/pairs_taken": float(self.pairs_taken), "vm/pairs_trimmed": float(self.pairs_trimmed),
             "mcmc/acceptance": self.acceptance, "mcmc/refill_s": self.refill_s,
             "draws/served": float(self.draws_served),
         })
@@ -309,6 +318,7 @@ class ShapeSampler:
             "last_tick": self.last_tick, "last_refill_iteration": self.last_refill_iteration,
             "draws_served": self.draws_served, "acceptance": self.acceptance, "refill_s": self.refill_s,
             "fit_s": self.fit_s, "cursor": self._cursor, "rng": json.dumps(self.rng.bit_generator.state),
+            "pairs_taken": self.pairs_taken, "pairs_trimmed": self.pairs_trimmed,
             "vm": vm_meta,
         }
         pending_p = np.concatenate(self._pending_params) if self._pending_params else np.zeros((0, self.space.dim))
@@ -351,6 +361,9 @@ class ShapeSampler:
         self.draws_served = int(meta["draws_served"])
         self.acceptance, self.refill_s = float(meta["acceptance"]), float(meta["refill_s"])
         self.fit_s = float(meta["fit_s"])
+        # NOTE: a state from before these counts: every pair it fitted or holds was taken.
+        self.pairs_taken = int(meta.get("pairs_taken", self.vm.pairs_seen + len(pending_v)))
+        self.pairs_trimmed = int(meta.get("pairs_trimmed", 0))
         self.rng = np.random.default_rng()
         self.rng.bit_generator.state = json.loads(meta["rng"])
         if self.clip_outcomes is not None:  # a state from before adaptive clip sampling has none: every clip unseen

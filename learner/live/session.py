@@ -140,7 +140,7 @@ def live_task(loaded: Loaded, clip: str | None = None, episode_s: float = 3600.0
 
 def video_status(scheduler: Any) -> str | None:
     """The video scheduler's packets as one line: received, rejected by reason (`pose_packet.REASONS`,
-    out_of_order, ik, socket) and the last rejection's message; None for another scheduler. A
+    out_of_order, ik, socket), dropped by the kernel (a full receive buffer) and the last rejection's message; None for another scheduler. A
     sender of the wrong layout is seen here (`rejected 16 (joint_count 16); last: joint_count:
     packet has 16 joints, this receiver expects 15`) instead of a character standing still."""
     if scheduler is None or not hasattr(scheduler, "rejected") or not hasattr(scheduler, "received"):
@@ -149,8 +149,10 @@ def video_status(scheduler: Any) -> str | None:
     text = f"video udp:{getattr(scheduler, 'port', '?')}: received {scheduler.received}, rejected {sum(rejected.values())}"
     if rejected:
         text += " (" + ", ".join(f"{k} {v}" for k, v in sorted(rejected.items(), key=lambda kv: -kv[1])) + ")"
-        if getattr(scheduler, "last_error", ""):
-            text += f"; last: {scheduler.last_error}"
+    if hasattr(scheduler, "dropped"):  # datagrams the kernel dropped before they could be read (a full buffer)
+        text += f", dropped by the kernel {scheduler.dropped()}"
+    if rejected and getattr(scheduler, "last_error", ""):
+        text += f"; last: {scheduler.last_error}"
     return text
 
 

@@ -47,6 +47,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from common import udp_drops
 from common.tasks.executor.schedulers import pose_packet
 from common.tasks.executor.schedulers.pose_blend import PoseMath
 from common.tasks.executor.schedulers.pose_ik import PositionIK
@@ -94,6 +95,9 @@ class VideoScheduler:
         self.host, self.port = self.sock.getsockname()[0], int(self.sock.getsockname()[1])
         self.received = 0
         """Packets accepted since construction."""
+        self.kernel_dropped = 0
+        """Datagrams the kernel dropped before `recv` (a full receive buffer), as of the last
+        `status()` or `poll` that found the socket's buffer full (`common.udp_drops`)."""
         self.rejected: Counter[str] = Counter()
         """Packets rejected since construction, by reason (pose_packet.REASONS, out_of_order, ik, socket)."""
         self.last_error = ""
@@ -114,7 +118,15 @@ class VideoScheduler:
     def close(self) -> None:
         """Close the socket (idempotent); the scheduler keeps serving what it has."""
         if self.sock.fileno() >= 0:
+            self.dropped()  # NOTE: the count goes with the socket: keep its last value
             self.sock.close()
+
+    def dropped(self) -> int:
+        """Datagrams the kernel dropped on this socket so far (0 where the system does not say)."""
+        n = udp_drops.kernel_drops(self.sock)
+        if n is not None:
+            self.kernel_dropped = max(self.kernel_dropped, n)
+        return self.kernel_dropped
 
     @property
     def closed(self) -> bool:
@@ -240,9 +252,10 @@ class VideoScheduler:
 
     def status(self) -> dict:
         """clip_time_s is the playback clock (stream time); behind_s how far it is behind the
-        newest packet (None before any). No NaN, so the dict serializes to strict JSON."""
+        newest packet (None before any); dropped the datagrams the kernel dropped (`dropped()`). No NaN, so the dict serializes to strict JSON."""
         return {"clip_id": self.clip_id, "clip_time_s": float(self._clock), "clip_duration_s": 0.0, "steps_left": 0,
-                "received": self.received, "rejected": int(sum(self.rejected.values())), "buffered": len(self._times),
+                "received": self.received, "rejected": int(sum(self.rejected.values())), "dropped": self.dropped(),
+                "buffered": len(self._times),
                 "behind_s": float(self._times[-1] - self._clock) if self._times else None, "late": self.late,
                 "last_error": self.last_error}
 
