@@ -86,14 +86,11 @@ class OriginPolicy:
             return True
         if not host:
             return False
-        try:
-            own = urlsplit(f"http://{host}")
-            hostname = own.hostname or ""
-            port = own.port
+        try:  # the page's own origin as the browser names it: http:// and the Host header it sent
+            expected = parse_origin(f"http://{host}", "Host")
         except ValueError:
             return False
-        expected = parse_origin(f"http://{host}", "Host") if hostname else ""
-        return origin == expected and _literal_or_localhost(hostname) and (port is None or 0 < port < 65536)
+        return origin == expected and _literal_or_localhost(urlsplit(expected).hostname or "")
 
     def _count(self, origin: str) -> None:
         key = origin if origin in self.refused or len(self.refused) < self.MAX_TRACKED else "other"

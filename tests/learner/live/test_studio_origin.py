@@ -61,6 +61,8 @@ def test_dns_rebinding_is_not_same_origin() -> None:
     assert not policy.allows("http://rebound.example:8080", "rebound.example:8080")  # a name may point anywhere
     assert not policy.allows("http://127.0.0.1:8081", "127.0.0.1:8080")
     assert not policy.allows("https://127.0.0.1:8080", "127.0.0.1:8080")
+    assert not policy.allows("http://127.0.0.1:99999", "127.0.0.1:99999")  # a malformed Host refuses, never raises
+    assert not policy.allows("http://127.0.0.1:8080", "")
     assert OriginPolicy(["http://rebound.example:8080/"]).allows("http://rebound.example:8080", "x:1")
 
 
