@@ -9,14 +9,23 @@ Custom resources (set on `ray start --resources=...`, see deploy/README.md):
                         host besides the training process itself
 A cluster without them still works: actors are then spread over the nodes (SPREAD) and a
 warning says so.
+
+The private local instance (`--mode local`, or auto with no cluster) exposes nothing: every Ray
+server in it (GCS, raylet, workers, the agents' metrics ports) listens on 127.0.0.1 only
+(`_loopback_only`), the dashboard is off, and nothing of it outlives the learner by more than a
+few seconds (`learner/ray_reaper.py`), even when the learner is SIGKILLed.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import socket
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
+
+from learner import ray_reaper
 
 log = logging.getLogger(__name__)
 
@@ -32,6 +41,8 @@ class RayContext:
     address: str
     resources: dict[str, float]
     node_ips: tuple[str, ...]
+    reaper: Any = field(default=None, compare=False, repr=False)
+    """The local instance's watcher (`ray_reaper.Reaper`), closed by `shutdown`; None when attached."""
 
 
 def _gcs_alive(address: str) -> bool:
@@ -100,11 +111,33 @@ def _token_auth_for_local_instance() -> None:
     Config.initialize("")
 
 
+@contextlib.contextmanager
+def _loopback_only():
+    """While a private instance starts: Ray takes 127.0.0.1 as this node's address, and its
+    servers then bind loopback only (Ray binds a gRPC server to 127.0.0.1 exactly when its node
+    address is 127.0.0.1, else to all interfaces; its agents and metrics servers likewise).
+
+    NOTE: Ray 2.60 offers no option for it: `ray.init(_node_ip_address="127.0.0.1")` is turned
+    back into the machine's interface address (`resolve_ip_for_localhost`). Its own single-node
+    switch is `RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0`, read once at import into
+    `ray_constants.ENABLE_RAY_CLUSTER`; we set that attribute for the duration of `ray.init` only,
+    since attaching to a real cluster later in the same process needs the interface address."""
+    import ray._private.ray_constants as ray_constants  # lazy: heavy (ray); private: see the NOTE
+
+    before = ray_constants.ENABLE_RAY_CLUSTER
+    ray_constants.ENABLE_RAY_CLUSTER = False
+    try:
+        yield
+    finally:
+        ray_constants.ENABLE_RAY_CLUSTER = before
+
+
 def connect(mode: str, explicit_address: str, num_actors: int, actor_cpus: float, learner_replicas: int = 1) -> RayContext:
     """Attach to a running cluster or start a private local Ray instance, per `mode`."""
     import ray  # lazy: heavy (ray), only in the Ray modes
 
     found = None if mode == "local" else find_running_cluster(explicit_address)
+    reaper = None
     if found is not None:
         address, how = found
         print(f"[morphmimic] attaching to the running Ray cluster at {address} (found via {how})", flush=True)
@@ -119,22 +152,27 @@ def connect(mode: str, explicit_address: str, num_actors: int, actor_cpus: float
         )
     else:
         cpus = max(2, int(num_actors * actor_cpus + 0.999))
-        print(f"[morphmimic] no Ray cluster to attach to: starting a private local Ray instance ({cpus} CPUs)", flush=True)
+        print(f"[morphmimic] no Ray cluster to attach to: starting a private local Ray instance ({cpus} CPUs, "
+              "loopback only)", flush=True)
         _token_auth_for_local_instance()
-        ray.init(
-            address="local",
-            num_cpus=cpus,
-            resources={ROLLOUT_RESOURCE: float(num_actors), SAMPLER_RESOURCE: 1.0,
-                       **({LEARNER_RESOURCE: float(learner_replicas - 1)} if learner_replicas > 1 else {})},
-            include_dashboard=False,
-            logging_level=logging.WARNING,
-        )
+        with _loopback_only():
+            ray.init(
+                address="local",
+                num_cpus=cpus,
+                resources={ROLLOUT_RESOURCE: float(num_actors), SAMPLER_RESOURCE: 1.0,
+                           **({LEARNER_RESOURCE: float(learner_replicas - 1)} if learner_replicas > 1 else {})},
+                include_dashboard=False,
+                dashboard_host="127.0.0.1",
+                logging_level=logging.WARNING,
+            )
+        # NOTE: the session directory has no public accessor; every process of the instance names it
+        reaper = ray_reaper.start(ray._private.worker._global_node.get_session_dir_path())
         kind = "local"
     resources = {k: float(v) for k, v in ray.cluster_resources().items() if not k.startswith("node:")}
     ips = tuple(sorted({n["NodeManagerAddress"] for n in ray.nodes() if n.get("Alive")}))
     print(f"[morphmimic] Ray {kind}: address {ray.get_runtime_context().gcs_address}, nodes {list(ips)}", flush=True)
     print(f"[morphmimic] resources: {', '.join(f'{k}={v:g}' for k, v in sorted(resources.items()))}", flush=True)
-    return RayContext(kind, ray.get_runtime_context().gcs_address, resources, ips)
+    return RayContext(kind, ray.get_runtime_context().gcs_address, resources, ips, reaper)
 
 
 def bind_host(ctx: RayContext | None, override: str) -> str:
@@ -162,6 +200,8 @@ def shutdown(ctx: RayContext | None) -> None:
 
     if ctx is not None and ray.is_initialized():
         ray.shutdown()
+    if ctx is not None and ctx.reaper is not None:
+        ctx.reaper.close()
 
 
 def start_test_cluster(rollout_per_worker: int = 1, cpus_per_worker: int = 1, learner_slots: int = 1, workers: int = 2):

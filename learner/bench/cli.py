@@ -13,7 +13,7 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "env-steps": ("learner.bench.env_steps", "a control step in this tree vs another git revision, and whether both compute the same"),
     "shape-batch": ("learner.bench.shape_batch", "a shape task's step as one batch vs its single environments vs pure physics"),
     "sampler": ("learner.bench.sampler", "MCMC refill time vs a policy iteration, draw latency through the socket"),
-    "soak": ("learner.bench.soak", "train while injecting faults; counts lost unrolls"),
+    "soak": ("learner.bench.soak", "train under every fault kind, then clean: survived, losses uncounted, return"),
     "curve": ("learner.bench.curve", "the unroll stream and a sampler round trip with CURVE vs plain sockets"),
     "replicas": ("learner.bench.replicas", "one PPO update in one process vs shared by data-parallel replicas, same batch"),
     "scaling": ("learner.bench.scaling", "fresh samples/s and learner share against rollout actors x learner replicas"),

@@ -5,7 +5,7 @@ UniCon 2020's schedulers (keyboard steering, clip stitching), projectiles and ma
 
     morphmimic studio                                   # lower_biped-20M on http://127.0.0.1:8080
     morphmimic studio --checkpoint learner/pretrained/executor --port 8090
-    morphmimic studio --host 0.0.0.0                    # share it on the network
+    morphmimic studio --host 0.0.0.0 --allow-origin http://myhost:8080   # share it on the network
     morphmimic studio --seconds 30                      # stops by itself (tests, demos)
     morphmimic studio --checkpoint executor --screenshot runs/studio.png   # headless Chromium: a PNG
 
@@ -25,6 +25,9 @@ step (and the panel is not refreshed): an unwatched studio idles (measured over 
 before, 0.1% after); the simulation goes on when a page connects. The status line names the
 checkpoint as it was typed or picked (`executor`, not its run's name), and with the video
 scheduler shows the packets received and rejected by reason.
+
+Only the studio's own page may open its websocket (origin_guard.py): a page of another origin
+is refused at the handshake, unless named with `--allow-origin` (remote use by a host name).
 
 `--screenshot PNG` opens the page in headless Chromium (learner/live/chromium.py; `apt-get
 install chromium`), waits until the scene shows the character and it has moved for
@@ -52,6 +55,7 @@ import viser
 from common.config_limits import PORT, Limit, above, at_least, check_limits, validated
 from learner.cli_options import parse_options
 from learner.live.chromium import DISMISS_NOTIFICATIONS_JS, Chromium, character_pixels, find_chromium
+from learner.live.origin_guard import OriginPolicy, guarded_viser_server, parse_origin
 from learner.live.session import AGENTS, SessionOptions
 from learner.live.studio_core import KEYS, SCHEDULERS, StudioCore, pretrained_checkpoints
 from learner.live.studio_scene import CharacterScene
@@ -401,14 +405,17 @@ class Studio:
 
     def __init__(self, checkpoint: str | None = None, host: str = "127.0.0.1", port: int = 8080,
                  agent: str = "policy", clip: str | None = None, seed: int = 0, verbose: bool = False,
-                 idle_unwatched: bool = True):
+                 idle_unwatched: bool = True, allow_origins: tuple[str, ...] = ()):
+        """`allow_origins`: web origins besides the studio's own page whose websockets are
+        accepted (`origin_guard.OriginPolicy`); ValueError names a malformed one."""
+        self.origins = OriginPolicy(allow_origins)
         server_log = logging.getLogger("websockets.server")
         if not any(isinstance(f, _QuietHandshakes) for f in server_log.filters):
             server_log.addFilter(_QuietHandshakes())
         checkpoints = pretrained_checkpoints()
         label = checkpoint or DEFAULT_CHECKPOINT
         self.core = StudioCore(checkpoints.get(label, label), agent=agent, clip=clip, seed=seed, label=label)
-        self.server = viser.ViserServer(host=host, port=port, label="morphmimic studio", verbose=verbose)
+        self.server = guarded_viser_server(self.origins, host=host, port=port, label="morphmimic studio", verbose=verbose)
         if idle_unwatched:  # NOTE: after the server exists; until then nobody can watch
             self.core.watched = lambda: bool(self.server.get_clients())
         self.scene = CharacterScene(self.server)
@@ -478,6 +485,8 @@ class StudioOptions(SessionOptions):
     """Address to serve on (0.0.0.0: share it on the network)."""
     port: int = 8080
     """Port (taken: the next free one is used and printed; 0: any)."""
+    allow_origin: tuple[str, ...] = ()
+    """Web origins (http://host:port) whose pages may open the studio besides its own; others are refused."""
     seconds: float | None = None
     """Stop by itself after this many seconds."""
     screenshot: Path | None = None
@@ -492,6 +501,8 @@ class StudioOptions(SessionOptions):
 
     def validate(self) -> None:
         check_limits(self)
+        for origin in self.allow_origin:
+            parse_origin(origin)
 
 
 def main(argv: list[str]) -> int:
@@ -500,7 +511,8 @@ def main(argv: list[str]) -> int:
 
     torch.set_num_threads(1)  # NOTE: one small MLP per step: more threads only fight the server's
     try:
-        studio = Studio(args.checkpoint, host=args.host, port=args.port, agent=args.agent, clip=args.clip, seed=args.seed)
+        studio = Studio(args.checkpoint, host=args.host, port=args.port, agent=args.agent, clip=args.clip, seed=args.seed,
+                        allow_origins=args.allow_origin)
     except (ValueError, FileNotFoundError, SystemExit) as exc:  # NOTE: checkpoint.load_trained exits with a message on a bad checkpoint
         print(f"{PROG}: {exc}", file=sys.stderr)
         return 2

@@ -1,0 +1,118 @@
+"""Ray exposes nothing that need not be: a learner's private local instance listens on loopback
+only and dies with the learner, SIGKILL included; the KubeRay manifest serves the dashboard
+inside the head pod only unless asked. A real learner process (`--mode local`) and `ss`."""
+
+from __future__ import annotations
+
+import ipaddress
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from learner import ray_reaper
+
+ROOT = Path(__file__).resolve().parents[2]
+LEAVE_S = 10.0
+"""How long a Ray process may outlive a SIGKILLed learner (main: 60-75 s)."""
+
+
+def _descendants(pid: int) -> dict[int, int]:
+    """pid -> start time of every live descendant of `pid` (from /proc)."""
+    table = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit() and (st := ray_reaper._stat(int(entry))) is not None:
+            table[int(entry)] = st
+    out, stack = {}, [pid]
+    while stack:
+        parent = stack.pop()
+        for child, (ppid, start, _) in table.items():
+            if ppid == parent and child not in out:
+                out[child] = start
+                stack.append(child)
+    return out
+
+
+def _alive(pids: dict[int, int]) -> dict[int, str]:
+    out = {}
+    for pid, start in pids.items():
+        st = ray_reaper._stat(pid)
+        if st is not None and st[1] == start:
+            out[pid] = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")[0].decode(errors="replace")[:80]
+    return out
+
+
+def _listening(pids: set[int]) -> list[tuple[str, int, str]]:
+    """(address, pid, process name) of every listening TCP socket of `pids`."""
+    out = subprocess.run(["ss", "-ltnpH"], capture_output=True, text=True, timeout=30, check=True).stdout
+    found = []
+    for line in out.splitlines():
+        owners = [(int(p), n) for n, p in re.findall(r'\("([^"]*)",pid=(\d+)', line)]
+        local = line.split()[3]
+        found += [(local, pid, name) for pid, name in owners if pid in pids]
+    return found
+
+
+def _loopback(local: str) -> bool:
+    host = local.rsplit(":", 1)[0].strip("[]")
+    if host.startswith("::ffff:"):
+        host = host[7:]
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+@pytest.mark.skipif(shutil.which("ss") is None or not Path("/proc/self/stat").exists(), reason="needs ss and /proc")
+def test_a_local_run_listens_on_loopback_only_and_nothing_of_ray_outlives_a_killed_learner(tmp_path) -> None:
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    args = [sys.executable, "-m", "learner.main", "--preset", "reach-tiny", "--mode", "local", "--runs-dir", str(tmp_path),
+            "--total-env-steps", "1000000000", "--checkpoint-every", "1000"]
+    proc = subprocess.Popen(args, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            start_new_session=True)
+    seen = {}
+    try:
+        lines, deadline = [], time.monotonic() + 180
+        while time.monotonic() < deadline:
+            line = proc.stdout.readline()
+            lines.append(line)
+            if line.startswith("iter     1") or (not line and proc.poll() is not None):
+                break
+        assert any(line.startswith("iter     1") for line in lines), "".join(lines[-30:])
+        seen = _descendants(proc.pid)
+        names = _alive(seen)
+        assert any("gcs_server" in n for n in names.values()) and any("raylet" in n for n in names.values()), names
+        sockets = _listening({proc.pid, *seen})
+        assert len(sockets) >= 4, sockets  # GCS, raylet, workers, the learner's own
+        exposed = [s for s in sockets if not _loopback(s[0])]
+        assert not exposed, f"listening beyond loopback: {exposed}"
+        assert "nodes ['127.0.0.1']" in "".join(lines)
+
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=30)
+        end = time.monotonic() + LEAVE_S
+        while _alive(seen) and time.monotonic() < end:
+            time.sleep(0.2)
+        assert not _alive(seen), f"still running {LEAVE_S:g} s after the learner's SIGKILL: {_alive(seen)}"
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=30)
+        for pid in _alive(seen):  # only this test's own processes, by pid
+            os.kill(pid, signal.SIGKILL)
+
+
+def test_the_kuberay_head_serves_the_dashboard_inside_its_pod_only() -> None:
+    manifest = yaml.safe_load((ROOT / "deploy/kuberay.yaml").read_text())
+    head = manifest["spec"]["headGroupSpec"]
+    # KubeRay sets dashboard-host 0.0.0.0 when the manifest says nothing: it must say 127.0.0.1
+    assert head["rayStartParams"].get("dashboard-host") == "127.0.0.1"
+    ports = [p for c in head["template"]["spec"]["containers"] for p in c.get("ports", [])]
+    assert 8265 not in {p["containerPort"] for p in ports}
