@@ -85,15 +85,23 @@ def _add_shape_presets() -> None:
             PRESETS[cfg.name] = (f"{text}; {vtext}", cfg)
 
 
+def _add_tiny_shape_presets() -> None:
+    """`<character>-tiny` for every shape task (the walkers and the swimmers): two iterations of
+    1024 steps, for smoke tests and the every-command-on-every-task test."""
+    for character in SHAPE_TASKS:
+        PRESETS[f"{character}-tiny"] = (
+            f"two iterations of {character} for smoke tests",
+            dataclasses.replace(
+                PRESETS[character][1], name=f"{character}-tiny", total_env_steps=2 * 1024, steps_per_iteration=1024,
+                checkpoint_every=1, vm_plot_every=1, actors=ActorConfig(num_actors=1, envs_per_actor=4, unroll_length=32),
+                sampler=SamplerConfig(k=ADAPTIVE_K, p_mcmc=1, n_mcmc=100, vm_fit_steps=10,
+                                      plot_params=SHAPE_TASKS[character][1]),
+            ),
+        )
+
+
 _add_shape_presets()
-PRESETS["lower_biped-tiny"] = (
-    "two iterations of lower_biped for smoke tests",
-    dataclasses.replace(
-        PRESETS["lower_biped"][1], name="lower_biped-tiny", total_env_steps=2 * 1024, steps_per_iteration=1024,
-        checkpoint_every=1, vm_plot_every=1, actors=ActorConfig(num_actors=1, envs_per_actor=4, unroll_length=32),
-        sampler=SamplerConfig(k=ADAPTIVE_K, p_mcmc=1, n_mcmc=100, vm_fit_steps=10, plot_params=("global_z", "global_x")),
-    ),
-)
+_add_tiny_shape_presets()
 
 
 def _executor_preset(variant: str = "") -> RunConfig:

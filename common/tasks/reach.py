@@ -8,6 +8,11 @@ machinery applies to any task parameter").
 Reward per control step: `exp(-d / 0.03)` with `d` the fingertip-target distance in metres
 (a bell, as every term of Won & Lee 2019), minus a small effort cost. A random policy earns
 about 0.05 per step; a policy that reaches and holds earns above 0.7.
+
+The target is drawn too (a red ball on a mocap body, outside the physics: not in the arm's tree,
+no contact), so a rendered episode (`morphmimic play`, the studio) shows what the arm reaches
+for; `view_distance_m` and `view_elevation_deg` tell a viewer's camera where to stand for a
+24 cm arm lying in the plane.
 """
 
 from __future__ import annotations
@@ -30,6 +35,13 @@ OBS_MAX_ABS = 1e3
 """Observations are cosines, sines, positions within 0.24 m and 0.1 x joint speed; the 0.05 N m
 motors against the joints' damping hold the speed to tens of rad/s (3.2 at most under a random
 policy), so 1000 is beyond any honest state."""
+ARM_RGBA = (0.47, 0.55, 0.69, 1.0)
+"""The characters' blue-grey (`common.characters.builder.BODY_RGBA`), which the studio's
+screenshot looks for."""
+TARGET_RGBA = (0.85, 0.2, 0.15, 1.0)
+TARGET_RADIUS_M = 0.012
+VIEW_DISTANCE_M = 0.75
+VIEW_ELEVATION_DEG = 55.0
 
 
 def build_arm() -> mujoco.MjModel:
@@ -45,9 +57,12 @@ def build_arm() -> mujoco.MjModel:
         body = parent.add_body(name=f"link{i}", pos=[x, 0, 0.02])
         body.add_joint(name=f"joint{i}", type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0, 0, 1], damping=0.002)
         body.add_geom(type=mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=[0, 0, 0, length, 0, 0], size=[0.01, 0, 0],
-                      density=500, contype=0, conaffinity=0)
+                      density=500, contype=0, conaffinity=0, rgba=list(ARM_RGBA))
         parent, x = body, length
     parent.add_site(name="fingertip", pos=[LINK_M[-1], 0, 0], size=[0.01, 0, 0])
+    target = world.add_body(name="target", mocap=True, pos=[0, 0, 0.02])
+    target.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[TARGET_RADIUS_M, 0, 0], rgba=list(TARGET_RGBA),
+                    contype=0, conaffinity=0)
     for i in range(len(LINK_M)):
         spec.add_actuator(name=f"motor{i}", target=f"joint{i}", trntype=mujoco.mjtTrn.mjTRN_JOINT,
                           gear=[GEAR_NM, 0, 0, 0, 0, 0], ctrlrange=[-1, 1], ctrllimited=1)
@@ -59,6 +74,10 @@ class ReachEnv:
 
     obs_dim = 12
     act_dim = 2
+    n_shape = 0
+    """Leading entries of the parameter vector that are body shape: none (both are the target's)."""
+    view_distance_m = VIEW_DISTANCE_M
+    view_elevation_deg = VIEW_ELEVATION_DEG
 
     @staticmethod
     def param_space(cfg: TaskConfig) -> ParamSpace:
@@ -87,6 +106,8 @@ class ReachEnv:
         self.model.opt.timestep = 1.0 / cfg.sim_hz
         self.data = mujoco.MjData(self.model)
         self.substeps = cfg.substeps
+        self.dt = 1.0 / cfg.control_hz
+        """Simulated seconds per control step."""
         self.rng = np.random.default_rng(seed)
         self.target = np.zeros(2)
         self.t = 0
@@ -103,6 +124,7 @@ class ReachEnv:
         angle, radius = self.space.validate(params)
         self.target = radius * np.array([math.cos(angle), math.sin(angle)])
         mujoco.mj_resetData(self.model, self.data)
+        self.data.mocap_pos[0, :2] = self.target
         self.data.qpos[:] = self.rng.uniform(-math.pi, math.pi, size=2)
         self.data.qvel[:] = self.rng.normal(0, 0.1, size=2)
         mujoco.mj_forward(self.model, self.data)

@@ -1,5 +1,10 @@
 """One registry of tasks: each task's environment class, family and the commands that take its
-checkpoints (`TASKS`), and `make_env(cfg, seed)`, `task_space(cfg)`, `task_bounds(cfg)` by task name."""
+checkpoints (`TASKS`), and `make_env(cfg, seed)`, `task_space(cfg)`, `task_bounds(cfg)` by task name.
+
+`TaskEntry.commands` is the one place that says which `morphmimic` commands work on a task's
+checkpoints: every command that takes a checkpoint asks `command_refusal` first, so a task a
+command does not serve is refused in one line naming the tasks it does serve
+(docs/commands.md has the table)."""
 
 from __future__ import annotations
 
@@ -12,6 +17,9 @@ from common.tasks.base import Env, TaskConfig
 from common.tasks.batch import BatchEnv, LoopBatch
 from common.tasks.content_bounds import ContentBounds
 
+REACH_COMMANDS = ("train", "evaluate", "learning-curve", "play", "studio")
+"""No ablation (nothing to ablate yet) and no robustness (UniCon's table perturbs a character's
+balance; the arm floats without gravity and has no body to push or throw at)."""
 SHAPE_COMMANDS = ("train", "curriculum", "evaluate", "ablation", "learning-curve", "robustness", "play", "studio")
 EXECUTOR_COMMANDS = ("train", "distill", "evaluate", "ablation", "learning-curve", "robustness", "velocity-probe",
                      "break-probe", "play", "studio")
@@ -36,7 +44,7 @@ class TaskEntry:
 
 
 TASKS: dict[str, TaskEntry] = {
-    "reach": TaskEntry("common.tasks.reach:ReachEnv", "reach", ("train",)),
+    "reach": TaskEntry("common.tasks.reach:ReachEnv", "reach", REACH_COMMANDS),
     **{name: TaskEntry("common.tasks.shape.env:ImitateEnv", "shape", SHAPE_COMMANDS,
                        batch="common.tasks.shape.batch:ShapeBatch")
        for name in ("lower_biped", "biped", "quadruped", "fish", "manta")},
@@ -51,6 +59,22 @@ def task_entry(name: str) -> TaskEntry:
     if name not in TASKS:
         raise ValueError(f"unknown task {name!r}; registered tasks: {sorted(TASKS)}")
     return TASKS[name]
+
+
+def tasks_offering(command: str) -> list[str]:
+    """The registered tasks whose checkpoints `morphmimic <command>` takes, in registry order."""
+    return [name for name, entry in TASKS.items() if command in entry.commands]
+
+
+def command_refusal(task: str, command: str) -> str | None:
+    """None when `morphmimic <command>` takes checkpoints of `task`; otherwise the one-line refusal:
+    the tasks it does take and the commands that take this task's checkpoints."""
+    entry = task_entry(task)
+    if command in entry.commands:
+        return None
+    offering = tasks_offering(command)
+    takes = f"it takes {', '.join(offering)}" if offering else "it takes no task's checkpoints"
+    return f"task {task!r} has no {command} ({takes}); {task} checkpoints work with: {', '.join(entry.commands)}"
 
 
 def _env_class(name: str) -> type:

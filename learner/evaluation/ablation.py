@@ -5,7 +5,7 @@ checkpoint evaluated alike.
 
 Shape controllers: Won & Lee 2019's ablations (`learner/evaluation/shape/ablation.py`); motion
 executors: UniCon's table (`learner/evaluation/executor/ablation.py`). The first checkpoint's task
-chooses (`learner/evaluation/registry.py`); each table refuses checkpoints of the other kind.
+chooses (`learner/evaluation/registry.py`), which refuses the others unless they are of its family.
 """
 
 from __future__ import annotations

@@ -5,7 +5,8 @@
 
 A shape controller's checkpoint: Won & Lee 2019's protocol (`learner/evaluation/shape/evaluate.py`,
 `morphmimic evaluate --checkpoint <shape checkpoint> --help`); a motion executor's: UniCon's, per
-clip (`learner/evaluation/executor/report.py`). Which one runs is the task's family in
+clip (`learner/evaluation/executor/report.py`); the reach arm's: success within a radius of random
+targets (`learner/evaluation/reach/evaluate.py`). Which one runs is the task's family in
 `learner/evaluation/registry.py`.
 """
 

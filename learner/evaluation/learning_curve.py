@@ -1,10 +1,13 @@
 """The learning curve of a run: every checkpoint evaluated the same
 way, against environment steps and wall time. A shape controller's run: fall-down % and task
-achievement on the same random shapes. A motion executor's run: UniCon's success % per split
-(train, held-out test), as `morphmimic evaluate` measures it (`executor_curve.py`).
+achievement on the same random shapes (a swimmer's also its speed error and time upright). A
+motion executor's run: UniCon's success % per split (train, held-out test), as `morphmimic
+evaluate` measures it (`executor/curve.py`). A reach run: success % within the radius and the
+fingertip's final distance on the same targets (`reach/curve.py`).
 
     morphmimic learning-curve --ckpt-dir runs/history/lower_biped/ckpt --shapes 100 --episode-s 10
     morphmimic learning-curve --ckpt-dir runs/executor-pd-arm/ckpt --starts 10 --every 10 --workers 2
+    morphmimic learning-curve --ckpt-dir runs/reach/ckpt --targets 100
 
 Wall time of a checkpoint: the training seconds it records (summed over every session of a
 resumed run, so pauses between sessions do not count). A checkpoint that does not record it
@@ -38,6 +41,7 @@ from learner.evaluation import harness, registry  # noqa: E402
 from learner.evaluation.shape import episodes
 
 from learner.evaluation.executor import curve as executor_curve
+from learner.evaluation.reach import curve as reach_curve
 
 PROG = "morphmimic learning-curve"
 
@@ -54,28 +58,30 @@ class CurveOptions:
     shapes: int | None = None
     """Shape controllers: random shapes (default 100)."""
     episode_s: float | None = None
-    """Shape controllers: episode length, s (default 10)."""
+    """Shape controllers and reach: episode length, s (default 10; reach: the checkpoint's own)."""
     seed: int | None = None
-    """Shape controllers: the shapes' seed (default 2019)."""
+    """Shape controllers and reach: the shapes' or targets' seed (default 2019)."""
     box_scale: float | None = None
     """Shape controllers: shapes from the box shrunk toward the base shape (a curriculum's progress;
     default 1: the whole box)."""
     starts: int | None = None
     """Executor: start frames per clip, as `morphmimic evaluate --starts` (default 10)."""
+    targets: int | None = None
+    """Reach: random targets (default 50)."""
     every: int = 1
     """Evaluate every n-th checkpoint (the last always)."""
     workers: int = 1
     """Processes running episodes."""
     target: float | None = None
-    """Report reaching this: fall-down % at most (shape controllers, default 20) or train success %
-    at least (executor, default 90)."""
+    """Report reaching this: fall-down % at most (shape controllers, default 20), train success %
+    at least (executor, default 90) or success % at least (reach, default 90)."""
     out: str = ""
     """Output directory (default: <ckpt-dir>/../curve)."""
 
     LIMITS: ClassVar[dict[str, Limit]] = {
         "start": at_least(0.0, integer=False), "shapes": at_least(1), "episode_s": above(0.0),
         "seed": SEED, "box_scale": between(0.0, 1.0, lo_open=True),
-        "starts": at_least(1), "every": at_least(1), "workers": at_least(1), "target": between(0.0, 100.0)}
+        "starts": at_least(1), "targets": at_least(1), "every": at_least(1), "workers": at_least(1), "target": between(0.0, 100.0)}
     FLAG_PREFIX: ClassVar[str] = ""
 
     def validate(self) -> None:
@@ -88,20 +94,25 @@ def main(argv: list[str]) -> int:
     if not ckpts:
         raise SystemExit(f"--ckpt-dir {args.ckpt_dir}: no checkpoints")
     newest = checkpoint.load_trained(ckpts[-1])  # the run's task decides which curve
-    executor = registry.family_of(newest.cfg.task.name, "learning-curve") == "executor"
-    kind_flags = {"--shapes": args.shapes, "--episode-s": args.episode_s, "--seed": args.seed, "--box-scale": args.box_scale}
+    family = registry.family_of(newest.cfg.task.name, "learning-curve")  # refuses a task the registry does not list
+    executor, reach = family == "executor", family == "reach"
+    given = {"--shapes": args.shapes, "--episode-s": args.episode_s, "--seed": args.seed, "--box-scale": args.box_scale,
+             "--starts": args.starts, "--targets": args.targets}
+    misplaced = [flag for flag, value in given.items() if value is not None and flag not in CURVE_FLAGS[family]]
+    if misplaced:
+        owners = [kind for kind, flags in CURVE_FLAGS.items() if misplaced[0] in flags]
+        refuse(PROG, f"{', '.join(misplaced)}: {OWNER_TEXT[owners[0]]}{''.join(' or ' + CURVE_TEXT[o] for o in owners[1:])}; "
+                     f"{newest.name} is {'an' if executor else 'a'} {newest.cfg.task.name} run (its curve takes "
+                     f"{', '.join(CURVE_FLAGS[family])})")
     if executor:
-        misplaced = [flag for flag, value in kind_flags.items() if value is not None]
-        if misplaced:
-            refuse(PROG, f"{', '.join(misplaced)}: options of a shape controller's curve; {newest.name} is an executor "
-                         "run (its curve takes --starts)")
         args = dataclasses.replace(args, starts=args.starts or 10,
                                    target=executor_curve.DEFAULT_TARGET if args.target is None else args.target)
         proto = executor_curve.protocol(newest, args.starts)
+    elif reach:
+        args = dataclasses.replace(args, target=reach_curve.DEFAULT_TARGET if args.target is None else args.target)
+        proto = reach_curve.protocol(args.targets or reach_curve.DEFAULT_TARGETS,
+                                     args.episode_s or newest.cfg.task.episode_s, 2019 if args.seed is None else args.seed)
     else:
-        if args.starts is not None:
-            refuse(PROG, f"--starts: an option of an executor's curve; {newest.name} is a {newest.cfg.task.name} run "
-                         "(its curve takes --shapes, --episode-s, --box-scale)")
         args = dataclasses.replace(args, shapes=args.shapes or 100, episode_s=args.episode_s or 10.0,
                                    seed=2019 if args.seed is None else args.seed,
                                    box_scale=1.0 if args.box_scale is None else args.box_scale,
@@ -111,11 +122,11 @@ def main(argv: list[str]) -> int:
     start = args.start or (os.path.getmtime(Path(args.run_dir) / "config.json") if args.run_dir else 0.0)
     out = Path(args.out) if args.out else Path(args.ckpt_dir).parent / "curve"
     out.mkdir(parents=True, exist_ok=True)
-    done, stale = _earlier_rows(out / "curve.json", proto, executor=executor)
+    done, stale = _earlier_rows(out / "curve.json", proto, family=family)
     rows = dict(done)
     for it, row in stale.items():  # kept unless its checkpoint is measured again below
         rows[it] = {**row, "fall_down_pct_extreme10": None}
-    header = proto if executor else {**proto, "extreme": EXTREME}
+    header = proto if executor or reach else {**proto, "extreme": EXTREME}
 
     fallback_wall = _wall_from_file_times(checkpoint.list_checkpoints(Path(args.ckpt_dir)), start)
     for c in ckpts:
@@ -132,11 +143,11 @@ def main(argv: list[str]) -> int:
         if not np.isfinite(wall):
             wall = fallback_wall.get(c, float("nan"))
         wall = wall if np.isfinite(wall) else None  # JSON null: unknown
-        figures = executor_curve.measure(loaded, args.starts, args.workers) if executor else _shape_figures(loaded, args)
+        figures = (executor_curve.measure(loaded, args.starts, args.workers) if executor else
+                   reach_curve.measure(loaded, proto) if reach else _shape_figures(loaded, args))
         row = {"iteration": int(loaded.state["iteration"]), "env_steps": int(loaded.state["env_steps"]), "wall_s": wall, **figures}
         rows[row["iteration"]] = row
-        text = executor_curve.line(row) if executor else (
-            f"fall-down {row['fall_down_pct']:5.1f}% task {row['task_achievement']:6.1f} length {row['mean_seconds']:5.2f} s")
+        text = executor_curve.line(row) if executor else reach_curve.line(row) if reach else _shape_line(row)
         print(f"[curve] it {row['iteration']:5d} steps {row['env_steps']:>10,d} wall {_minutes(wall)} min | {text}", flush=True)
         _write(out / "curve.json", header, rows)  # after every row: an interrupted curve keeps what it measured
     _write(out / "curve.json", header, rows)
@@ -144,6 +155,10 @@ def main(argv: list[str]) -> int:
     if executor:
         executor_curve.plot(ordered, out / "curve.png", args.target, args.starts)
         print(f"[curve] {executor_curve.reached(ordered, args.target)}")
+        return 0
+    if reach:
+        reach_curve.plot(ordered, out / "curve.png", args.target, proto)
+        print(f"[curve] {reach_curve.reached(ordered, args.target)}")
         return 0
     _plot(ordered, out / "curve.png", args)
     hit = next((r for r in ordered if r["fall_down_pct"] <= args.target), None)
@@ -153,6 +168,15 @@ def main(argv: list[str]) -> int:
         best = min(ordered, key=lambda r: r["fall_down_pct"])
         print(f"[curve] never reached {args.target:g}%: best {best['fall_down_pct']:.1f}% at {best['env_steps']:,d} steps")
     return 0
+
+
+def _shape_line(row: dict) -> str:
+    """A shape controller's console line of one row; a swimmer's with its speed error and time upright."""
+    text = f"fall-down {row['fall_down_pct']:5.1f}% task {row['task_achievement']:6.1f} length {row['mean_seconds']:5.2f} s"
+    if row.get("swim_upright_pct") is not None:
+        error = row.get("swim_speed_error_pct")
+        text += f" swim speed error {'-' if error is None else f'{error:.1f}'}% upright {row['swim_upright_pct']:.1f}%"
+    return text
 
 
 def _shape_figures(loaded: checkpoint.Loaded, args: CurveOptions) -> dict:
@@ -209,18 +233,25 @@ def every_nth(ckpts: list[Path], n: int) -> list[Path]:
     return [c for i, c in enumerate(ckpts) if i == 0 or bucket[i] != bucket[i - 1] or i == len(ckpts) - 1]
 
 
+CURVE_FLAGS = {"shape": ("--shapes", "--episode-s", "--seed", "--box-scale"), "executor": ("--starts",),
+               "reach": ("--targets", "--episode-s", "--seed")}
+"""The options each family's curve takes (the others are refused for its runs)."""
+OWNER_TEXT = {"shape": "options of a shape controller's curve", "executor": "an option of an executor's curve",
+              "reach": "options of a reach curve"}
+CURVE_TEXT = {"shape": "a shape controller's curve", "executor": "an executor's curve", "reach": "a reach curve"}
+
 # Version of the extreme-10% column: "base" since it ranks shapes by their distance from the base
 # shape (`episodes.extremeness`); curves written before then ranked them from the box centre.
 EXTREME = "base"
 PROTOCOL = ("shapes", "episode_s", "seed", "box_scale")
 
 
-def _earlier_rows(path: Path, proto: dict, executor: bool = False) -> tuple[dict[int, dict], dict[int, dict]]:
+def _earlier_rows(path: Path, proto: dict, family: str = "shape") -> tuple[dict[int, dict], dict[int, dict]]:
     """Rows of an earlier curve.json in `--out`, iteration -> row: (current, stale). `proto`: the
     fields this call's rows depend on (the shapes, episode length, seed and box; for an executor
-    the task, clips and starts). A file made with others is refused rather than overwritten: its
+    the task, clips and starts; for reach the task, targets, episode length, seed and radius). A file made with others is refused rather than overwritten: its
     rows may be the only record of checkpoints the run has since deleted, and so is one whose rows
-    lack or mistype a figure the curve reads (`_row_problem`). Shape curves (not `executor`): rows measured before the extreme-10% ranking changed are stale: their checkpoints
+    lack or mistype a figure the curve reads (`_row_problem`). Shape curves (`family` "shape"): rows measured before the extreme-10% ranking changed are stale: their checkpoints
     are measured again, and rows whose checkpoints are gone keep their fall-down % with no
     extreme-10% figure."""
     if not path.exists():
@@ -237,14 +268,14 @@ def _earlier_rows(path: Path, proto: dict, executor: bool = False) -> tuple[dict
                          + "; this call asks for " + ", ".join(f"{k} {_short(b)}" for k, (_, b) in differ.items())
                          + ": choose another --out (its rows are kept)")
     for row in rows.values():
-        problem = _row_problem(row, executor)
+        problem = _row_problem(row, family)
         if problem:
             raise SystemExit(f"{path}: row of iteration {row.get('iteration')!r}: {problem}; move the file away or "
                              "choose another --out")
-    return (rows, {}) if executor or earlier.get("extreme") == EXTREME else ({}, rows)
+    return (rows, {}) if family != "shape" or earlier.get("extreme") == EXTREME else ({}, rows)
 
 
-def _row_problem(row, executor: bool) -> str:
+def _row_problem(row, family: str) -> str:
     """What is wrong with one row of a curve.json, or "" (each field the curve reads, by type)."""
     if not isinstance(row, dict):
         return f"{type(row).__name__}, not an object"
@@ -253,8 +284,10 @@ def _row_problem(row, executor: bool) -> str:
             return f"{key} = {_short(row.get(key))}; allowed: an integer in [0, 2^53]"
     if not executor_curve.is_figure(row.get("wall_s"), none_ok=True):
         return f"wall_s = {row.get('wall_s')!r}; allowed: seconds or null"
-    if executor:
+    if family == "executor":
         return executor_curve.row_problem(row)
+    if family == "reach":
+        return reach_curve.row_problem(row)
     if not executor_curve.is_figure(row.get("fall_down_pct")):
         return f"fall_down_pct = {row.get('fall_down_pct')!r}; allowed: a number"
     if not executor_curve.is_figure(row.get("fall_down_pct_extreme10"), none_ok=True):

@@ -88,12 +88,14 @@ class PlayOptions(SessionOptions):
 
 def make_session(args: PlayOptions) -> tuple[LiveSession, Any]:
     """The session `args` describe, with its scheduler in place (None: the task's own)."""
-    session = LiveSession(args.checkpoint, agent=args.agent, clip=args.clip, shape=dict(args.shape) or None, seed=args.seed)
+    session = LiveSession(args.checkpoint, agent=args.agent, clip=args.clip, shape=dict(args.shape) or None, seed=args.seed,
+                          command="play")
     scheduler = None
     if args.scheduler != "dataset" or args.stitch or args.keys:
         if session.kind != "executor":
+            follows = "follows its own clip" if session.kind == "shape" else "reaches for drawn targets"
             raise ValueError(f"--scheduler {args.scheduler}: schedulers drive the executor; "
-                             f"{session.loaded.name} is a shape controller that follows its own clip")
+                             f"{session.loaded.name} is a {session.kind} task that {follows}")
 
         options = {"stitch": {"clips": tuple(args.stitch)}, "keyboard": {"script": tuple(args.keys)},
                    "video": {"host": args.video_host, "port": args.video_port}}.get(args.scheduler, {})
@@ -106,10 +108,12 @@ def make_session(args: PlayOptions) -> tuple[LiveSession, Any]:
 
 def status_line(session: LiveSession) -> str:
     """One line: simulated time, the episode's return, the resets with the last one's cause,
-    the clip tracked now and its time (the executor), the last step's reward terms, and for
-    video the packets received and rejected by reason."""
+    the clip tracked now and its time (the executor), the fingertip's distance to the target
+    (reach), the last step's reward terms, and for video the packets received and rejected by reason."""
     last = session.last
     terms = " ".join(f"{k[:9]} {v:.2f}" for k, v in (last.get("terms") or {}).items())
+    if "distance_m" in last:
+        terms = " ".join([f"distance {1000 * last['distance_m']:.0f} mm"] + ([terms] if terms else []))
     tracking = session.tracking()
     where = f" | {tracking[0]} {tracking[1]:.1f}s" if tracking else ""
     video = video_status(session.scheduler)
@@ -159,7 +163,8 @@ def render_video(session: LiveSession, path: Path, seconds: float, speed: float,
                 while sim_t < f * speed / fps - 1e-9:
                     session.step()
                     sim_t += dt
-                writer.append_data(renderer.render(session.env, session.root_body, swimmer=session.is_swimmer))
+                writer.append_data(renderer.render(session.env, session.root_body, swimmer=session.is_swimmer,
+                                                   **session.view))
                 bar.update()
     finally:
         writer.close()
@@ -181,8 +186,10 @@ def main(argv: list[str]) -> int:
                 return 2
             n = render_video(session, args.out, args.seconds, args.speed, args.fps, args.width, args.height)
             video = video_status(scheduler)
+            distance = session.last.get("distance_m")  # reach: where the fingertip ended
             print(f"[play] wrote {args.out}: {n} frames at {args.fps:g} fps ({args.seconds:g} s simulated at x{args.speed:g}); "
-                  f"return {session.episode_return:.2f}, {session.reset_text()}" + (f"; {video}" if video else ""))
+                  f"return {session.episode_return:.2f}, {session.reset_text()}" + (f"; {video}" if video else "")
+                  + (f"; fingertip {1000 * distance:.0f} mm from the target" if distance is not None else ""))
         else:
             run_realtime(session, args.seconds, args.speed, args.viewer)
             print(status_line(session))

@@ -14,6 +14,12 @@ uniform random actions in [-1, 1]. What can change while it runs:
   reset by itself when `auto_reset` is on. `resets` counts the resets and `last_reset` names
   the cause of the last one (`RESET_CAUSES`).
 
+The reach arm runs too: its episodes keep the checkpoint's length and each reset draws a new
+target (the arm has no shape to change, no body to push, no clip to follow). A checkpoint whose
+task does not list the session's command (`play`, `studio`) in the task registry
+(`common.tasks.registry.command_refusal`) is refused with a `ValueError` naming the tasks the
+command takes.
+
 What a reset does to the executor's schedule (`ExecutorEnv.reset`): the dataset scheduler
 draws anew; stitch, keyboard and video resume, the body put back on the schedule's current
 target frame (the stitch queue's clip and time, the key script's clock, the video clock go on),
@@ -38,7 +44,7 @@ import torch
 from common.characters.character import extent
 from common.characters.mass import scale_body_mass
 from common.config_limits import SEED, Limit, check_limits, validated
-from common.tasks.registry import make_env, task_clips
+from common.tasks.registry import command_refusal, make_env, task_clips, task_entry
 from learner.checkpoint import Loaded, load_trained, make_policy
 from learner.evaluation import harness
 
@@ -67,6 +73,8 @@ RESET_CAUSES = {
 }
 """The causes `LiveSession.step` and `reset` record in `last_reset`; an executor ended by one of
 its reward terms (a checkpoint's own termination rule) records the term's name."""
+SHAPE_FIXED = {"executor": "the executor trains on the base humanoid", "reach": "the reach arm has no shape parameters"}
+"""Why a family's body cannot change shape (a shape controller's: it trained on one body)."""
 PUSH_MOMENTUM_NS = 20.0
 """A shape controller's stand-in for a projectile: the executor's 2 kg ball at 10 m/s."""
 
@@ -130,6 +138,8 @@ def live_task(loaded: Loaded, clip: str | None = None, episode_s: float = 3600.0
     initialization and no termination (the session reads the checkpoint's own rule off the
     reward terms and resets by itself)."""
     cfg = loaded.cfg.task
+    if task_entry(cfg.name).family == "reach":  # its own episode length: each episode a new target
+        return cfg
     if cfg.name == "executor":
         ex = dataclasses.replace(cfg.executor, clips=(clip,) if clip else (), split="all", at_clip_end="reschedule",
                                  reactive_init=False, on_frame_share=0.0, catch_up_steps=0, termination="none",
@@ -160,11 +170,16 @@ class LiveSession:
     """One environment of `checkpoint` driven by `agent`; see the module docstring."""
 
     def __init__(self, checkpoint: str, agent: str = "policy", clip: str | None = None,
-                 shape: dict[str, float] | None = None, seed: int = 0, auto_reset: bool = True):
+                 shape: dict[str, float] | None = None, seed: int = 0, auto_reset: bool = True,
+                 command: str = "play"):
         if agent not in AGENTS:
             raise ValueError(f"agent {agent!r} is not one of {', '.join(AGENTS)}")
         self.loaded = load_trained(checkpoint)
-        self.kind = "executor" if self.loaded.cfg.task.name == "executor" else "shape"
+        refusal = command_refusal(self.loaded.cfg.task.name, command)
+        if refusal is not None:
+            raise ValueError(refusal)
+        self.kind = task_entry(self.loaded.cfg.task.name).family
+        """The task's family: "shape", "executor" or "reach"."""
         self.clips = [c for c, _ in task_clips(live_task(self.loaded))]
         """The clips this checkpoint can follow: every humanoid clip (the executor) or its own task's."""
         if clip and clip not in self.clips:
@@ -230,6 +245,8 @@ class LiveSession:
         """The current shape with `values` (name -> value) set; ValueError naming any unknown
         name or a value outside the parameterization's box."""
         names = self.shape_names
+        if not names and values:
+            raise ValueError(f"{self.loaded.name} has no shape parameters (a {self.kind} task)")
         lo, hi = self.shape_box
         out = np.asarray(self.params[: self.n_shape], dtype=np.float64).copy()
         if not isinstance(values, dict):
@@ -250,9 +267,11 @@ class LiveSession:
         return hi - lo
 
     def character_bodies(self) -> np.ndarray:
-        """Body ids of the character (not the world, not the executor's projectiles)."""
+        """Body ids of the character (not the world, not the executor's projectiles, not a
+        mocap marker such as the reach target)."""
         n = self.env.ref_model.nbody if self.kind == "executor" else self.env.model.nbody
-        return np.arange(1, n)
+        ids = np.arange(1, n)
+        return ids[self.env.model.body_mocapid[ids] < 0]
 
     @property
     def root_body(self) -> int:
@@ -260,7 +279,16 @@ class LiveSession:
 
     @property
     def is_swimmer(self) -> bool:
-        return bool(self.env.character.is_swimmer)
+        return bool(getattr(getattr(self.env, "character", None), "is_swimmer", False))
+
+    @property
+    def view(self) -> dict[str, float]:
+        """Where a camera should stand for this body when its environment says so (its
+        `view_distance_m`, `view_elevation_deg`, as the reach arm's does): `distance_m`,
+        `elevation_deg`; {} for the characters (the viewers' own defaults)."""
+        view = {"distance_m": getattr(self.env, "view_distance_m", None),
+                "elevation_deg": getattr(self.env, "view_elevation_deg", None)}
+        return {k: float(v) for k, v in view.items() if v is not None}
 
     # ---- running ----
 
@@ -273,6 +301,8 @@ class LiveSession:
             self.resets += 1
             self.last_reset = cause
         clip = self.clip if self.kind == "executor" else None
+        if self.kind == "reach" and cause is not None:  # a new episode, a new target
+            self.params = self.env.space.uniform(self.rng, 1)[0]
         if self.kind == "executor":
             self.obs, _ = self.env.reset(self.seed + self.resets, self.params, clip_id=clip, restart=restart)
         else:
@@ -318,7 +348,7 @@ class LiveSession:
             ended = "time limit"
         self.last = {"step": self.steps, "reward": float(r), "terms": terms, "ended": ended,
                      "return": self.episode_return, "episode_steps": self.episode_steps, "reset": False,
-                     **{k: info[k] for k in ("clip_id", "clip_time_s") if k in info}}
+                     **{k: info[k] for k in ("clip_id", "clip_time_s", "distance_m") if k in info}}
         if ended and self.auto_reset:
             self.reset(cause=ended)
             self.last["reset"] = True
@@ -332,7 +362,8 @@ class LiveSession:
         """Morph the body to the current shape with `values` set, keeping its state (shape
         controllers only); returns the new shape vector."""
         if not self.shape_can_change:
-            raise ValueError("this checkpoint's body cannot change shape (the executor trains on the base humanoid)")
+            why = SHAPE_FIXED.get(self.kind, "it trained on one body")
+            raise ValueError(f"this checkpoint's body cannot change shape ({why})")
         shape = self.shape_vector(values)
         self.env.set_shape(shape)
         self.params = np.concatenate([shape, np.asarray(self.params[self.n_shape :], float)])
@@ -358,6 +389,9 @@ class LiveSession:
         if self.kind == "executor":
             self.env.throw_projectile(float(speed_mps), 2.0, self.rng)
             return
+        if self.kind != "shape":
+            raise ValueError(f"projectiles and pushes are for the characters (shape controllers, the executor); "
+                             f"{self.loaded.name} is a {self.kind} task")
         a = self.rng.uniform(0.0, 2.0 * math.pi)
         mass = float(np.sum(self.env.model.body_mass[self.character_bodies()]))
         dv = PUSH_MOMENTUM_NS * float(speed_mps) / 10.0 / mass

@@ -243,7 +243,8 @@ class StudioGui:
         self.steer_note.content = (
             "Keys (or the arrow keys, **S** stop) steer the executor through the keyboard scheduler; "
             "*Queue clip* stitches clips (the stitch scheduler). Both switch the scheduler on first use."
-            if executor else f"*{self.core.label} is a shape controller: it follows its own clip; "
+            if executor else f"*{self.core.label} is {KIND_TEXT.get(s.kind, 'a ' + s.kind + ' task')}: it "
+                             f"{'reaches for a new target each episode' if s.kind == 'reach' else 'follows its own clip'}; "
                              "keyboard steering and stitching drive the executor.*")
         for slider in self._shape_sliders.values():
             slider.remove()
@@ -253,7 +254,8 @@ class StudioGui:
         self.body_note.content = (
             f"{len(s.shape_names)} shape parameters; dragging a slider morphs the body while it moves "
             "(Won & Lee 2019); its state is kept." if can else
-            f"*{self.core.label} trains on one body: its shape cannot change (sliders disabled).*")
+            f"*{self.core.label} trains on one body: its shape cannot change (sliders disabled).*" if s.shape_names else
+            f"*{self.core.label} has no shape parameters.*")
         self.shape_text.disabled = self.shape_apply.disabled = not can
         self._set_quietly(self.body_preset, options=list(s.body_presets()), value="base", disabled=not can)
         with self.shape_folder:
@@ -357,11 +359,17 @@ def keyboard_styles() -> list[str]:
         return ["walk", "run"]
 
 
+KIND_TEXT = {"executor": "the executor", "shape": "a shape controller", "reach": "the reach arm"}
+"""How the page names a task family."""
+
+
 def status_markdown(snap: dict[str, Any]) -> str:
-    what = "executor" if snap["kind"] == "executor" else "shape controller"
+    what = KIND_TEXT.get(snap["kind"], snap["kind"]).split(" ", 1)[-1]
     parts = [f"**{snap['name']}** ({what})", f"agent {snap['agent']}", f"t {snap['time_s']:.1f} s",
              f"return {snap['return']:.1f}", snap.get("reset_text") or f"resets {snap['resets']}",
              f"mass x{snap['mass_factor']:.2f}"]
+    if snap.get("distance_m") is not None:
+        parts.append(f"fingertip {1000 * snap['distance_m']:.0f} mm from the target")
     if snap["kind"] == "executor":
         when = f" {snap['clip_time_s']:.1f} s" if snap.get("clip_time_s") is not None else ""
         parts.append(f"{snap['scheduler']}: {snap['clip'] or '-'}{when}")
@@ -520,8 +528,9 @@ def main(argv: list[str]) -> int:
     if args.screenshot is not None:
         try:
             take_screenshot(studio, args.screenshot, args.screenshot_size, args.screenshot_after)
-        except RuntimeError as exc:
-            print(f"{PROG}: --screenshot: {exc}", file=sys.stderr)
+        except (RuntimeError, TimeoutError) as exc:  # NOTE: TimeoutError: Chromium's DevTools did not answer (a busy machine)
+            print(f"{PROG}: --screenshot: {'chromium did not answer: ' if isinstance(exc, TimeoutError) else ''}{exc}",
+                  file=sys.stderr)
             return 2
         finally:
             studio.stop()

@@ -24,7 +24,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from learner.live.session import AGENTS, SCHEDULERS, LiveSession, shape_pair, video_status
+from learner.live.session import AGENTS, SCHEDULERS, SHAPE_FIXED, LiveSession, shape_pair, video_status
 
 PRETRAINED = Path(__file__).resolve().parents[1] / "pretrained"
 KEYS = ("left", "right", "faster", "slower", "stop")
@@ -80,7 +80,7 @@ class StudioCore:
                  label: str | None = None, watched: Callable[[], bool] | None = None):
         self.seed = seed
         self.speed = float(speed)
-        self.session = LiveSession(checkpoint, agent=agent, clip=clip, seed=seed)
+        self.session = LiveSession(checkpoint, agent=agent, clip=clip, seed=seed, command="studio")
         self.checkpoint = checkpoint
         self.label = label or str(checkpoint)
         """The checkpoint as the user named it (typed, or picked in the page), not its run's name."""
@@ -252,7 +252,7 @@ class StudioCore:
     def _apply_shape(self, values: dict[str, float]) -> str:
         s = self.session
         if not s.shape_can_change:
-            raise ValueError(f"{s.loaded.name}'s body cannot change shape (the executor trains on the base humanoid)")
+            raise ValueError(f"{s.loaded.name}'s body cannot change shape ({SHAPE_FIXED.get(s.kind, 'it trained on one body')})")
         good: dict[str, float] = {}
         bad: list[str] = []
         for name, value in values.items():  # NOTE: one bad value must not drop the good ones
@@ -299,7 +299,8 @@ class StudioCore:
         if name not in SCHEDULERS:
             raise ValueError(f"scheduler {name!r} is not one of {', '.join(SCHEDULERS)}")
         if s.kind != "executor":
-            raise ValueError(f"schedulers drive the executor; {self.label} is a shape controller that follows its own clip")
+            raise ValueError(f"schedulers drive the executor; {self.label} is "
+                             + ("a shape controller that follows its own clip" if s.kind == "shape" else f"a {s.kind} task"))
         try:
             # lazy: optional: if the schedulers fail to load, the studio reports it (except below)
             from common.tasks.executor.schedulers.factory import make_scheduler
@@ -341,7 +342,7 @@ class StudioCore:
             if clip not in s.clips:
                 raise ValueError(f"clip {clip!r} is unknown; choose from: {', '.join(s.clips)}")
             if s.kind != "executor":
-                raise ValueError("clip queues (stitching) drive the executor; a shape controller follows its own clip")
+                raise ValueError(f"clip queues (stitching) drive the executor; {self.label} is a {s.kind} task")
             if self.scheduler_name != "stitch" or self.scheduler is None:
                 self._use_scheduler("stitch", clips=(clip,))
                 return f"stitch: started with {clip}"
@@ -387,7 +388,7 @@ class StudioCore:
 
         def work() -> None:
             try:
-                new = LiveSession(checkpoint, agent=agent, clip=clip, seed=self.seed)
+                new = LiveSession(checkpoint, agent=agent, clip=clip, seed=self.seed, command="studio")
             except SystemExit as exc:  # NOTE: checkpoint.load_trained refuses a bad checkpoint with SystemExit(message)
                 self.loading = None
                 self.submit("load", _raiser(ValueError(str(exc))))
@@ -434,6 +435,7 @@ class StudioCore:
             "last_reset": s.last_reset, "reset_text": s.reset_text(),
             "return": s.episode_return, "reward": float(last.get("reward", 0.0)),
             "clip": tracking[0] if tracking else last.get("clip_id", s.clip), "clip_time_s": tracking[1] if tracking else None,
+            "distance_m": last.get("distance_m"),
             "scheduler": self.scheduler_name, "mass_factor": s.mass_factor, "paused": self.paused,
             "errors": self.errors, "message": self.message, "message_is_error": self.message_is_error,
             "loading": self.loading, "t": t, "reward_hist": np.array([h[1] for h in hist], float), "terms": terms,

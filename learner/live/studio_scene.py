@@ -32,6 +32,7 @@ class CharacterScene:
         self._visible = True
         self._root: viser.FrameHandle | None = None
         self._distance = 3.0
+        self._elevation = CAMERA_ELEVATION_DEG
         self._target = np.zeros(3)
         server.on_client_connect(self._aim_camera)
 
@@ -68,12 +69,14 @@ class CharacterScene:
             self.scene._tracked_body_id = int(session.root_body)  # NOTE: mjviser tracks the first free body by default
         self.model = model
         self.rebuilds += 1
-        if new_character:
-            self._distance = float(np.clip(2.5 * session.body_height_m(), 2.0, 8.0))
+        if new_character:  # NOTE: a task may say where to stand (the 24 cm reach arm); else by the body's height
+            view = session.view
+            self._distance = view.get("distance_m") or float(np.clip(2.5 * session.body_height_m(), 2.0, 8.0))
+            self._elevation = view.get("elevation_deg") or CAMERA_ELEVATION_DEG
             self.set_follow(self.follow, session.env.data.xpos[session.root_body])
 
     def camera_offset(self) -> np.ndarray:
-        az, el = np.deg2rad(CAMERA_AZIMUTH_DEG), np.deg2rad(CAMERA_ELEVATION_DEG)
+        az, el = np.deg2rad(CAMERA_AZIMUTH_DEG), np.deg2rad(self._elevation)
         return self._distance * np.array([-np.cos(el) * np.cos(az), -np.cos(el) * np.sin(az), np.sin(el)])
 
     def _aim_camera(self, client: viser.ClientHandle) -> None:

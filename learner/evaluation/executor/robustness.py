@@ -22,7 +22,8 @@ Shape controllers (Won & Lee walkers and swimmers): `--shapes` random shapes (fi
 `--episode-s` episodes; success = did not fall. Mass rows apply to every one; speed rows only to
 a checkpoint trained with the "speed" task parameter (its playback speed is an observed episode
 parameter); projectile rows to none (the shape tasks have no projectile body). Skipped rows are
-listed with the reason.
+listed with the reason. A task the registry does not list `robustness` for (reach: an arm without
+gravity, nothing to push) is refused in one line (`common.tasks.registry.command_refusal`).
 
 The projectile (`ExecutorEnv.throw_projectile`, a 2 kg ball of 8 cm radius) is launched at
 `--projectile-speed` (10 m/s) from `--projectile-distance` (2 m) straight at the root, at steps
@@ -51,7 +52,7 @@ import torch
 
 from common.config_limits import SEED, Limit, above, at_least, check_limits, validated
 from learner.cli_options import parse_options, refuse
-from learner.evaluation import harness
+from learner.evaluation import harness, registry
 from learner.evaluation.shape import episodes
 from learner import checkpoint
 
@@ -367,7 +368,7 @@ def _line(res: dict, base: dict) -> str:
 def main(argv: list[str]) -> int:
     args = parse_options(RobustnessOptions, argv, prog=PROG, description=__doc__)
     loaded = checkpoint.load_trained(args.checkpoint)
-    executor = loaded.cfg.task.name == "executor"
+    executor = registry.family_of(loaded.cfg.task.name, "robustness") == "executor"  # refuses a task it does not take
     given = harness.changed_flags(args, SHAPE_ONLY if executor else EXECUTOR_ONLY, {"settings": "--set"})
     if given:
         refuse(PROG, f"{', '.join(given)}: not options for task {loaded.cfg.task.name!r} "

@@ -117,8 +117,10 @@ class FollowRenderer:
         self._renderer = None
         self._model = None
 
-    def render(self, env, root_body: int, swimmer: bool = False) -> np.ndarray:
-        """`[height, width, 3]` uint8 of `env.model` / `env.data` now."""
+    def render(self, env, root_body: int, swimmer: bool = False, distance_m: float | None = None,
+               elevation_deg: float | None = None) -> np.ndarray:
+        """`[height, width, 3]` uint8 of `env.model` / `env.data` now; `distance_m` and
+        `elevation_deg` (a task's own view, as the reach arm's) replace the characters' camera."""
         if self._model is not env.model:
             self.close()
             self._model = env.model
@@ -127,8 +129,8 @@ class FollowRenderer:
         cam = mujoco.MjvCamera()
         cam.type = mujoco.mjtCamera.mjCAMERA_FREE
         cam.lookat[:] = env.data.subtree_com[root_body]
-        cam.distance = 3.0 if not swimmer else 2.5
-        cam.azimuth, cam.elevation = 120.0, (-30.0 if swimmer else -12.0)
+        cam.distance = distance_m or (3.0 if not swimmer else 2.5)
+        cam.azimuth, cam.elevation = 120.0, -(elevation_deg or (30.0 if swimmer else 12.0))
         self._renderer.update_scene(env.data, camera=cam)
         return self._renderer.render().copy()
 

@@ -234,5 +234,5 @@ def test_an_earlier_row_of_the_wrong_type_is_refused_naming_it(tmp_path, executo
     path.write_text(json.dumps({**proto, "extreme": "base", "rows": [row]}))
     before = path.read_text()
     with pytest.raises(SystemExit, match=re.escape(says)):
-        _earlier_rows(path, proto, executor=executor)
+        _earlier_rows(path, proto, family="executor" if executor else "shape")
     assert path.read_text() == before

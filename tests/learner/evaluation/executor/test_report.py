@@ -237,7 +237,7 @@ def test_ablation_refuses_to_mix_executor_and_shape_checkpoints(tmp_path: Path, 
     arm = tiny_executor(tmp_path, "arm")
     with pytest.raises(SystemExit) as exc:
         ablation.main(["--checkpoints", str(tmp_path / "walker"), str(arm), "--out", str(tmp_path / "abl")])
-    assert exc.value.code == 2 and "executor checkpoints" in capsys.readouterr().err
+    assert exc.value.code == 2 and "one ablation compares checkpoints of one family" in capsys.readouterr().err
 
 
 def test_ablation_settings_name_the_wait_and_the_rotor_inertia_only_when_changed() -> None:
