@@ -22,10 +22,12 @@ everything made from these clips, checkpoints trained on them included, carries 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Callable, ContextManager
 
 from common.motion.bvh import parse_bvh
 from common.motion.clip import Clip
@@ -129,26 +131,33 @@ def write_manifest(entries: list[dict], path: Path = CLIPS_JSON) -> None:
 
 
 def import_bandai(root: str | Path, out_dir: str | Path | None = None, manifest: str | Path | None = CLIPS_JSON,
-                  log=print) -> tuple[list[Clip], list[tuple[Path, str]]]:
+                  log=print, bar_for: Callable[[int], ContextManager[Any]] | None = None) -> tuple[list[Clip], list[tuple[Path, str]]]:
     """Convert every take below `root` (module docstring) into `out_dir` (default
     `common/data/clips/`) as `humanoid/bandai/<take>.npz`, float32 compressed, and put their
     entries into `manifest` (None: leave it). Returns (clips, failures); a take that fails is
-    reported with its reason and left out, the others are still written."""
+    reported with its reason and left out, the others are still written. `bar_for(n)`: a
+    progress bar for n takes (a context whose value has `update()`; the command's
+    `learner.progress.Progress`), advanced per take, which then replaces the per-take lines."""
     out_dir = Path(out_dir) if out_dir else CLIPS_DIR
     takes, failures = find_takes(root)
     clips, entries = [], []
     start = time.monotonic()
-    for k, take in enumerate(takes):
-        try:
-            clip = convert_take(take)
-        except ClipError as exc:
-            failures.append((take.path, str(exc)))
-            log(f"FAILED {take.stem}: {exc}")
-            continue
-        clip.save(out_dir / f"{take.clip_id}.npz", compact=True)
-        clips.append(clip)
-        entries.append(manifest_entry(take, clip))
-        log(f"[{k + 1}/{len(takes)} {time.monotonic() - start:.0f} s] {take.clip_id}: {clip.num_frames} frames, {take.label}")
+    with (bar_for(len(takes)) if bar_for else contextlib.nullcontext()) as bar:
+        for k, take in enumerate(takes):
+            try:
+                clip = convert_take(take)
+            except ClipError as exc:
+                failures.append((take.path, str(exc)))
+                log(f"FAILED {take.stem}: {exc}")
+                continue
+            finally:
+                if bar is not None:
+                    bar.update()
+            clip.save(out_dir / f"{take.clip_id}.npz", compact=True)
+            clips.append(clip)
+            entries.append(manifest_entry(take, clip))
+            if bar is None:
+                log(f"[{k + 1}/{len(takes)} {time.monotonic() - start:.0f} s] {take.clip_id}: {clip.num_frames} frames, {take.label}")
     if manifest is not None:
         write_manifest(entries, Path(manifest))
     log(f"{len(clips)} clips converted, {sum(c.num_frames for c in clips)} frames; {len(failures)} failed")

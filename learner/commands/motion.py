@@ -171,7 +171,8 @@ def _character(preset: str, args):
 def cmd_import(args) -> int:
     out_dir = Path(args.out) if args.out else CLIPS_DIR
     if args.bandai:  # the Bandai Namco takes onto the humanoid + their manifest entries
-        return 1 if bandai.import_bandai(args.bandai, args.out)[1] else 0
+        bar_for = lambda n: Progress("[motion import] bandai", n, "takes")  # noqa: E731
+        return 1 if bandai.import_bandai(args.bandai, args.out, bar_for=bar_for)[1] else 0
     jobs = []
     if args.all:
         lib = MotionLibrary()

@@ -154,7 +154,23 @@ def test_every_sample_take_imports_and_a_mislabelled_take_fails_naming_it(tmp_pa
         (tmp_path / dataset / "data" / f"{stem}.json").write_text(json.dumps({"content": content, "style": 0}))
     manifest = tmp_path / "clips.json"
     manifest.write_text(json.dumps({"clips": [{"id": "keep", "label": "root/x"}]}))
-    clips, failures = import_bandai(tmp_path, tmp_path / "out", manifest, log=lambda *_: None)
+    ticks = []
+
+    class Bar:  # what `learner.progress.Progress` offers the conversion
+        def __init__(self, n):
+            ticks.append(("total", n))
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return None
+
+        def update(self):
+            ticks.append("take")
+
+    clips, failures = import_bandai(tmp_path, tmp_path / "out", manifest, log=lambda *_: None, bar_for=Bar)
+    assert ticks == [("total", 2), "take", "take"]  # each take found advances the bar (the mislabelled one fails when found)
     assert sorted(c.name for c in clips) == sorted(ID_PREFIX + b.stem for b in (WALK, RAISE))
     assert len(failures) == 1 and failures[0][0].name == "dataset-1_run_normal_001.bvh"
     assert "file name says ['run', 'normal']" in failures[0][1]
@@ -171,8 +187,9 @@ def test_the_cli_flag_runs_the_conversion(monkeypatch, tmp_path):
     seen = []
     import common.motion.bandai as bandai
 
-    monkeypatch.setattr(bandai, "import_bandai", lambda root, out: seen.append((root, out)) or ([], []))
-    assert cli.main(["import", "--bandai", str(tmp_path)]) == 0 and seen == [(str(tmp_path), None)]
+    monkeypatch.setattr(bandai, "import_bandai", lambda root, out, bar_for: seen.append((root, out, bar_for(3))) or ([], []))
+    assert cli.main(["import", "--bandai", str(tmp_path)]) == 0 and seen[0][:2] == (str(tmp_path), None)
+    assert type(seen[0][2]).__name__ == "Progress"  # the command's progress bar
 
 
 @pytest.fixture(scope="module")
