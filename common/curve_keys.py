@@ -181,6 +181,7 @@ class RefusalCounter:
         events = 0
         for event in REFUSAL_EVENTS:
             events |= event
+        self._sock = sock
         self._monitor = sock.get_monitor_socket(events)
 
     def poll(self, counters, prefix: str = "") -> int:
@@ -200,4 +201,8 @@ class RefusalCounter:
                 n += 1
 
     def close(self) -> None:
+        """Stop monitoring, then close the monitor's end (as `socket_events.ConnectionEvents`: a
+        socket closed with its monitor still on left later sockets of the process deaf)."""
+        if not self._sock.closed:
+            self._sock.disable_monitor()
         self._monitor.close(linger=0)
