@@ -155,7 +155,7 @@ def test_the_sampler_takes_state_changes_from_the_learner_only() -> None:
     for what in ("actor reports", "actor ticks", "actor reads state"):
         assert isinstance(results[what], wire.WireError) and "taken only from learner" in str(results[what]), \
             (what, results[what])
-    assert results["learner reports"] is None  # stored
+    assert str(results["learner reports"]).startswith("stored 2 pairs")  # the service's note
     assert isinstance(results["stranger draws"], ServiceUnavailable)
     assert stats["requests/rejected/forbidden"] == 3.0
     assert sum(v for k, v in stats.items() if k.startswith("requests/rejected/auth_")) >= 1
