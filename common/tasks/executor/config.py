@@ -184,7 +184,7 @@ class ExecutorConfig:
         "on_frame_share": between(0, 1),
         "speed": between(0.05, 10), "ankle_armature": between(0, 10), "arm_armature": between(0, 10),
         "target_velocity_window": between(1, 30, integer=True), "reference_filter_hz": between(0, 30),
-        "action_rate_weight": between(0, 10),
+        "action_rate_weight": between(0, 10), "preview": between(1, 60, integer=True),
     }
     """Allowed values of the numeric fields (`common.config_limits`)."""
 
