@@ -24,6 +24,7 @@ from common import sockets, wire
 from learner import checkpoint
 from learner.presets import PRESETS
 from learner.train import Run, train
+from tests.learner.actor_restart import restarted_pid
 
 pytestmark = pytest.mark.cluster
 ROOT = Path(__file__).resolve().parents[2]
@@ -81,11 +82,7 @@ def test_killed_actor_is_restarted_and_in_flight_losses_are_counted(cluster, tmp
         # the killed process had queued can still arrive; a stop sent while the new process had
         # not started its loop left no final heartbeat to account its tail.
         if "killed_pid" in seen and "back_at_received" not in seen:
-            try:
-                pid = ray.get(run.pool.handles[0].stats.remote(), timeout=1.0)["pid"]
-            except ray.exceptions.RayError:
-                pid = None
-            if pid is not None and pid != seen["killed_pid"]:
+            if restarted_pid(run.pool.handles[0], seen["killed_pid"]) is not None:
                 seen["back_at_received"] = run.transport.received[0]
         if (metrics["faults/actor_restarts"] >= 1 and it >= 6 and "back_at_received" in seen
                 and run.transport.received[0] > seen["back_at_received"]):

@@ -26,6 +26,7 @@ from learner.presets import PRESETS
 from learner.sampler_handle import pairs_taken_of
 from learner.train import Run, train
 from learner.transport import LearnerTransport
+from tests.learner.actor_restart import restarted_pid
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -121,11 +122,7 @@ def test_one_actor_kill_counts_one_restart(tmp_path):
             seen["pid"] = ray.get(run.pool.handles[0].stats.remote(), timeout=30)["pid"]
             os.kill(seen["pid"], signal.SIGKILL)
         if "pid" in seen and "back_at" not in seen:
-            try:
-                pid = ray.get(run.pool.handles[0].stats.remote(), timeout=1.0)["pid"]
-            except ray.exceptions.RayError:
-                pid = None
-            if pid is not None and pid != seen["pid"]:
+            if restarted_pid(run.pool.handles[0], seen["pid"]) is not None:
                 seen["back_at"] = run.transport.received[0]
         # The new process has been sending for a while: every failed resubmission is behind us.
         if "back_at" in seen and run.transport.received[0] >= seen["back_at"] + 4:
