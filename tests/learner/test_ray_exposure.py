@@ -45,7 +45,8 @@ def _alive(pids: dict[int, int]) -> dict[int, str]:
     for pid, start in pids.items():
         st = ray_reaper._stat(pid)
         if st is not None and st[1] == start:
-            out[pid] = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")[0].decode(errors="replace")[:80]
+            argv0 = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")[0].decode(errors="replace")
+            out[pid] = Path(argv0).name  # the program's name: a clone's path may be any length
     return out
 
 
