@@ -12,13 +12,14 @@ warning says so.
 
 The private local instance (`--mode local`, or auto with no cluster) exposes nothing: every Ray
 server in it (GCS, raylet, workers, the agents' metrics ports) listens on 127.0.0.1 only
-(`_loopback_only`), the dashboard is off, and nothing of it outlives the learner by more than a
+(`loopback_only`), the dashboard is off, and nothing of it outlives the learner by more than a
 few seconds (`learner/ray_reaper.py`), even when the learner is SIGKILLed.
 """
 
 from __future__ import annotations
 
 import contextlib
+import ipaddress
 import logging
 import os
 import socket
@@ -26,6 +27,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from learner import ray_reaper
+
+LOOPBACK = "127.0.0.1"
+"""The node address of a private instance and of the test cluster: their servers bind it only."""
 
 log = logging.getLogger(__name__)
 
@@ -112,7 +116,7 @@ def _token_auth_for_local_instance() -> None:
 
 
 @contextlib.contextmanager
-def _loopback_only():
+def loopback_only():
     """While a private instance starts: Ray takes 127.0.0.1 as this node's address, and its
     servers then bind loopback only (Ray binds a gRPC server to 127.0.0.1 exactly when its node
     address is 127.0.0.1, else to all interfaces; its agents and metrics servers likewise).
@@ -132,6 +136,17 @@ def _loopback_only():
         ray_constants.ENABLE_RAY_CLUSTER = before
 
 
+def _is_loopback(address: str) -> bool:
+    """Whether a Ray address (`host:port`, maybe `ray://`) names this machine's loopback."""
+    host = address.split("://")[-1].rsplit(":", 1)[0].strip("[]")
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
 def connect(mode: str, explicit_address: str, num_actors: int, actor_cpus: float, learner_replicas: int = 1) -> RayContext:
     """Attach to a running cluster or start a private local Ray instance, per `mode`."""
     import ray  # lazy: heavy (ray), only in the Ray modes
@@ -143,7 +158,11 @@ def connect(mode: str, explicit_address: str, num_actors: int, actor_cpus: float
         print(f"[morphmimic] attaching to the running Ray cluster at {address} (found via {how})", flush=True)
         if how != "--ray-address":
             _use_token_auth_if_available()
-        ray.init(address=address, logging_level=logging.WARNING, log_to_driver=True)
+        # NOTE: a cluster on loopback (`local-cluster`, `ray start --node-ip-address 127.0.0.1`) has
+        # its raylets at 127.0.0.1; the driver must take that address too to find them.
+        on_loopback = loopback_only() if _is_loopback(address) else contextlib.nullcontext()
+        with on_loopback:
+            ray.init(address=address, logging_level=logging.WARNING, log_to_driver=True)
         kind = "cluster"
     elif mode == "cluster":
         raise RuntimeError(
@@ -155,7 +174,7 @@ def connect(mode: str, explicit_address: str, num_actors: int, actor_cpus: float
         print(f"[morphmimic] no Ray cluster to attach to: starting a private local Ray instance ({cpus} CPUs, "
               "loopback only)", flush=True)
         _token_auth_for_local_instance()
-        with _loopback_only():
+        with loopback_only():
             ray.init(
                 address="local",
                 num_cpus=cpus,
@@ -213,13 +232,15 @@ def start_test_cluster(rollout_per_worker: int = 1, cpus_per_worker: int = 1, le
     and the scaling and soak benchmarks run on it."""
     from ray.cluster_utils import Cluster  # lazy: heavy (ray), only when a test cluster is wanted
 
-    cluster = Cluster(
-        initialize_head=True,
-        connect=False,
-        head_node_args={"num_cpus": 0, "resources": {SAMPLER_RESOURCE: 1, LEARNER_RESOURCE: learner_slots},
-                        "include_dashboard": False},
-    )
-    for _ in range(workers):
-        cluster.add_node(num_cpus=cpus_per_worker, resources={ROLLOUT_RESOURCE: rollout_per_worker})
-    cluster.wait_for_nodes()
+    with loopback_only():  # every node at 127.0.0.1: each server binds loopback only
+        cluster = Cluster(
+            initialize_head=True,
+            connect=False,
+            head_node_args={"num_cpus": 0, "resources": {SAMPLER_RESOURCE: 1, LEARNER_RESOURCE: learner_slots},
+                            "include_dashboard": False, "node_ip_address": LOOPBACK},
+        )
+        for _ in range(workers):
+            cluster.add_node(num_cpus=cpus_per_worker, resources={ROLLOUT_RESOURCE: rollout_per_worker},
+                             node_ip_address=LOOPBACK)
+        cluster.wait_for_nodes()
     return cluster

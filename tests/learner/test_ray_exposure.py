@@ -61,6 +61,17 @@ def _listening(pids: set[int]) -> list[tuple[str, int, str]]:
     return found
 
 
+def _read_until(proc: subprocess.Popen, start: str, timeout_s: float = 180.0) -> list[str]:
+    """The process's output lines up to the first that starts with `start` (or its end)."""
+    lines, deadline = [], time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        lines.append(line)
+        if line.startswith(start) or (not line and proc.poll() is not None):
+            break
+    return lines
+
+
 def _loopback(local: str) -> bool:
     host = local.rsplit(":", 1)[0].strip("[]")
     if host.startswith("::ffff:"):
@@ -80,12 +91,7 @@ def test_a_local_run_listens_on_loopback_only_and_nothing_of_ray_outlives_a_kill
                             start_new_session=True)
     seen = {}
     try:
-        lines, deadline = [], time.monotonic() + 180
-        while time.monotonic() < deadline:
-            line = proc.stdout.readline()
-            lines.append(line)
-            if line.startswith("iter     1") or (not line and proc.poll() is not None):
-                break
+        lines = _read_until(proc, "iter     1")
         assert any(line.startswith("iter     1") for line in lines), "".join(lines[-30:])
         seen = _descendants(proc.pid)
         names = _alive(seen)
@@ -117,3 +123,33 @@ def test_the_kuberay_head_serves_the_dashboard_inside_its_pod_only() -> None:
     assert head["rayStartParams"].get("dashboard-host") == "127.0.0.1"
     ports = [p for c in head["template"]["spec"]["containers"] for p in c.get("ports", [])]
     assert 8265 not in {p["containerPort"] for p in ports}
+
+
+@pytest.mark.skipif(shutil.which("ss") is None or not Path("/proc/self/stat").exists(), reason="needs ss and /proc")
+def test_the_local_test_cluster_listens_on_loopback_only() -> None:
+    """`morphmimic local-cluster`: a head and two workers, each node at 127.0.0.1 and every
+    server of theirs bound to loopback (before: GCS, raylets and agents on all interfaces)."""
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    proc = subprocess.Popen([sys.executable, "-m", "learner.cli", "local-cluster"], cwd=ROOT, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    seen = {}
+    try:
+        lines = _read_until(proc, "stop it:")
+        assert any("test cluster up" in line for line in lines), "".join(lines[-30:])
+        assert "at 127.0.0.1:" in "".join(lines)
+        seen = _descendants(proc.pid)
+        names = _alive(seen)
+        assert sum("raylet" in n for n in names.values()) == 3, names  # head + 2 workers
+        sockets = _listening({proc.pid, *seen})
+        assert len(sockets) >= 6, sockets
+        exposed = [s for s in sockets if not _loopback(s[0])]
+        assert not exposed, f"listening beyond loopback: {exposed}"
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout=30)
+        for pid in _alive(seen):
+            os.kill(pid, signal.SIGKILL)

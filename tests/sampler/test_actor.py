@@ -3,6 +3,7 @@
 import pytest
 
 from common.params import ParamSpace
+from learner.cluster import loopback_only
 from sampler.actor import SamplerActor
 from sampler.client import SamplerClient
 from sampler.config import SamplerConfig
@@ -11,7 +12,8 @@ ray = pytest.importorskip("ray")
 
 
 def test_sampler_actor_serves_draws_and_stops():
-    ray.init(address="local", num_cpus=1, include_dashboard=False, log_to_driver=False)
+    with loopback_only():  # every server of the instance on 127.0.0.1
+        ray.init(address="local", num_cpus=1, include_dashboard=False, log_to_driver=False)
     try:
         space = ParamSpace(names=("steer", "speed"), low=(-1.0, 0.5), high=(1.0, 2.0))
         handle = ray.remote(num_cpus=0)(SamplerActor).remote(SamplerConfig(n_mcmc=100, seed=1), space, None)
