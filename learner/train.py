@@ -223,6 +223,8 @@ def _continue_counters(run: Run, saved: dict, reached: run_progress.Progress | N
         return
     iterations = reached.iteration - learner.iteration
     steps = max(0, reached.env_steps - learner.env_steps)
+    per_unroll = run.cfg.actors.unroll_length * run.cfg.actors.envs_per_actor
+    run.transport.resume_allowance += -(-steps // per_unroll)
     run.lost["lost_iterations"] += iterations
     run.lost["lost_env_steps"] += steps
     run.out.line(f"[morphmimic] the killed session had reached iteration {reached.iteration} ({reached.env_steps:,d} env "
@@ -458,6 +460,8 @@ def _wire_metrics(transport: LearnerTransport, learner: Learner, pool) -> dict[s
     for k, v in c.items():
         if k.startswith("rejected/"):
             out[f"wire/{k}"] = float(v)
+        elif k.startswith("lost/"):  # work a killed session took with it (`transport.resume_marks`)
+            out[f"faults/{k[5:]}"] = float(v)
     for reason, count in transport.snapshots.dropped.items():  # weights replies a peer did not take
         out[f"wire/snapshot_replies_dropped/{reason}"] = float(count)
     return out

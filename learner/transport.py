@@ -86,6 +86,14 @@ class LearnerTransport:
         from it is accepted, so one refused message never blocks an actor."""
         self.resumed = False
         """Set by `load_state_dict`: each actor's first message sets its baseline, not seq 0."""
+        self.resume_marks: dict[int, int] = {}
+        """Each actor's highest number in the checkpoint resumed from: what its first message
+        after the resume skips beyond it was numbered by the session that died and never reached
+        a checkpoint (received by that session after its last one, or in flight when it died):
+        `lost/unrolls_at_resume`."""
+        self.resume_allowance = MAX_SEQ_JUMP
+        """Most unrolls one actor's first message after a resume may book as lost there; the
+        run raises it by what the killed session's extra iterations could have numbered."""
         self.received: collections.Counter[int] = collections.Counter()
         """Valid unrolls received per actor."""
         self.sampler_outages: dict[int, int] = {}
@@ -198,6 +206,7 @@ class LearnerTransport:
             baseline = seq - 1 if unroll else seq  # a resumed learner's baseline
             if baseline >= 0:
                 self.last_seq[actor_id] = self.numbering[actor_id] = baseline
+                self._book_resume_loss(actor_id, baseline)
         high = self.last_seq.get(actor_id, -1)
         current = self.numbering.get(actor_id, high)
         due = seq - 1 if unroll else seq
@@ -225,6 +234,21 @@ class LearnerTransport:
         reached = self.numbering.get(actor_id, -1)
         if reached > high:
             self.last_seq[actor_id] = reached
+
+    def _book_resume_loss(self, actor_id: int, baseline: int) -> None:
+        """An actor's first message after a resume: the numbers between the checkpoint's mark and
+        `baseline` were sent to a session that died before checkpointing them. Counted, up to
+        `resume_allowance` (more is no honest actor's: logged, not counted)."""
+        mark = self.resume_marks.pop(actor_id, None)
+        if mark is None or baseline <= mark:
+            return  # a clean stop's checkpoint (nothing skipped), or an actor numbering from 0 again
+        lost = baseline - mark
+        if lost > self.resume_allowance:
+            log.warning("actor %d: first number %d after the resume skips %d beyond the checkpoint's %d; more than "
+                        "the %d the killed session could have numbered: not counted", actor_id, baseline + 1, lost, mark,
+                        self.resume_allowance)
+            return
+        self.counters["lost/unrolls_at_resume"] += lost
 
     def _book(self, msg, policy_version: int, max_policy_lag: int) -> wire.UnrollMsg | None:
         if isinstance(msg, wire.UnrollMsg) and msg.policy_version > policy_version:
@@ -305,11 +329,15 @@ class LearnerTransport:
         }
 
     def load_state_dict(self, state: dict) -> None:
-        """Counters only. The checkpoint's `last_seq` is as old as the checkpoint: the unrolls
-        received between it and the stop were trained on, not lost, and the actors' ledgers
-        number on from them, so each actor's first message after a resume is the new baseline
-        (otherwise every resume counted them as gaps: "gaps 49" after 9 resumes)."""
+        """Counters, and the checkpoint's `last_seq` as each actor's resume mark. Each actor's
+        first message after a resume is its new baseline: the numbers it skips beyond the mark
+        are not wire gaps but work the previous session took and lost with it (a clean stop
+        checkpoints after its drain, so they are none), counted as `lost/unrolls_at_resume`."""
         self.last_seq, self.numbering, self.refused_at = {}, {}, {}
+        self.resume_marks = {}
+        for k, v in state.get("last_seq", {}).items():
+            if str(k).isdigit() and isinstance(v, int) and not isinstance(v, bool) and 0 <= v < 2**53:
+                self.resume_marks[int(k)] = v
         self.resumed = True
         self.counters.update(state["counters"])
         self.snapshots.rejected.update(state.get("snapshot_rejected_counters", {}))

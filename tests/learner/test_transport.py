@@ -148,9 +148,11 @@ def test_an_internal_error_while_accepting_is_counted_not_raised(monkeypatch):
         t.close()
 
 
-def test_a_resumed_learner_keeps_its_counters_but_counts_no_gap_for_unrolls_after_its_checkpoint():
-    """The checkpoint was written when actor 1 had sent seq 10; the learner trained on 11-19 and
-    stopped; the actor's ledger numbers on from 20. Only a gap after that baseline counts."""
+def test_a_resumed_learner_counts_what_the_killed_session_took_after_its_checkpoint_as_lost_at_resume():
+    """The checkpoint was written when actor 1 had sent seq 10; the session took 11-19 and was
+    killed; the actor's ledger numbers on from 20. Those 9 are work lost with the session
+    (`lost/unrolls_at_resume`), not wire gaps; only a gap after the new baseline is one. Actor
+    0, absent from the checkpoint, sets its baseline and books nothing."""
     before = _transport()
     before.last_seq[1] = 10
     before.counters["seq_gap_unrolls"] = 3
@@ -166,6 +168,29 @@ def test_a_resumed_learner_keeps_its_counters_but_counts_no_gap_for_unrolls_afte
         push.send_multipart(wire.encode(_unroll(42, actor_id=0)))  # 41 lost
         assert [u.seq for u in _drain(t)] == [20, 21, 23, 42]
         assert t.counters["seq_gap_unrolls"] == 3 + 1 + 1  # seq 22 of actor 1, 41 of actor 0
+        assert t.counters["lost/unrolls_at_resume"] == 9  # 11-19 of actor 1
+    finally:
+        push.close()
+        t.close()
+
+
+def test_a_clean_stop_resumes_with_nothing_lost_and_a_forged_first_number_books_at_most_the_allowance():
+    """After a clean stop the checkpoint holds each actor's last number: the next one follows on
+    and nothing is booked. A first number far beyond the checkpoint (more than the killed
+    session could have numbered) is taken as the baseline but books nothing."""
+    before = _transport()
+    before.last_seq.update({0: 7, 1: 10})
+    state = before.state_dict()
+    before.close()
+    t = _transport()
+    t.load_state_dict(state)
+    t.resume_allowance = 50
+    push = _push(t)
+    try:
+        push.send_multipart(wire.encode(_unroll(8, actor_id=0)))
+        push.send_multipart(wire.encode(_unroll(10_000, actor_id=1)))
+        assert [u.seq for u in _drain(t)] == [8, 10_000]
+        assert t.counters["lost/unrolls_at_resume"] == 0 and t.counters["seq_gap_unrolls"] == 0
     finally:
         push.close()
         t.close()
