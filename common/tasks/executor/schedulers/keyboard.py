@@ -6,9 +6,11 @@ direction/speed/style into target frames").
     s.begin(rng, align_to=character_qpos)
     s.command("style:run")                 # or "left", "right", "faster", "slower", "stop", "walk", "run"
 
-The generator plays the style's locomotion clip (`locomotion_styles`: every humanoid clip
-labelled root/locomotion/..., named by its id: walk, run, crawl, zombie_walk, mass_walk,
-mass_run) cyclically:
+The generator plays the style's locomotion clip cyclically (`locomotion_styles`: every humanoid
+clip labelled root/locomotion/..., named by its id: walk, run, crawl, zombie_walk, mass_walk,
+mass_run; and every style of the Bandai Namco walks, runs and dashes, named `<style>_<content>`:
+happy_walk, tired_run, proud_dash, ...; a take of several strides loops over its closest-posed
+span, `_loop_rows`):
 
 - One cycle is sampled once on the control grid (`_Cycle`, vectorised), turned so the clip's
   direction of travel (its root displacement over the clip) is +x, and its seam closed: the
@@ -46,6 +48,7 @@ import mujoco
 import numpy as np
 
 from common.motion.library import clips_for
+from common.motion.manifest import Manifest, load_manifest, unicon_take_split
 from common.tasks.observations import JointLayout, heading, quat_to_mat
 from common.tasks.executor.schedulers.pose_blend import PoseMath
 from common.tasks.executor.schedulers.base import MotionFn, TargetFrame, place, yaw_quat
@@ -56,15 +59,60 @@ KEYS = ("left", "right", "faster", "slower", "stop", "walk", "run", "style:<name
 """The commands `KeyboardScheduler.command` accepts ("walk"/"run": shortcuts for the styles)."""
 
 
-def locomotion_styles(character: str = "humanoid") -> dict[str, str]:
-    """Style name -> clip id of every locomotion clip of `character` (manifest labels under
-    root/locomotion/): the id's last part without the 'humanoid3d_' prefix (walk, run, crawl,
-    zombie_walk, mass_walk, mass_run)."""
+BANDAI_LOCOMOTION = ("walk", "run", "dash")
+"""The Bandai Namco contents that travel: each of their styles is a keyboard style."""
+
+
+def locomotion_styles(character: str = "humanoid", split_seed: int = 0) -> dict[str, str]:
+    """Style name -> clip id of every locomotion style of `character`'s library: each clip
+    labelled root/locomotion/... named by its id's last part without 'humanoid3d_' (walk, run,
+    crawl, zombie_walk, mass_walk, mass_run), then each Bandai Namco walk, run and dash style
+    (labels root/bandai/<content>/<style>) named `<style>_<content>` (happy_walk, tired_run,
+    proud_dash, ...), played from its first take in the executor's training split (seed
+    `split_seed`, `unicon_take_split`), else its first take."""
     out: dict[str, str] = {}
+    takes: dict[str, list[str]] = {}
+    bandai: list[str] = []
     for clip_id, label in clips_for(character):
         if label.startswith("root/locomotion/"):
             out[clip_id.split("/")[-1].removeprefix("humanoid3d_")] = clip_id
+        parts = label.split("/")
+        if parts[1:2] == ["bandai"]:
+            bandai.append(clip_id)
+            if len(parts) == 4 and parts[2] in BANDAI_LOCOMOTION:
+                takes.setdefault(f"{parts[3]}_{parts[2]}", []).append(clip_id)
+    if takes:
+        trained = _trained_takes(bandai, split_seed)
+        for name in sorted(takes):
+            ids = sorted(takes[name])
+            out[name] = next((c for c in ids if c in trained), ids[0])
     return out
+
+
+def _trained_takes(clip_ids: list[str], split_seed: int) -> set[str]:
+    """Those of `clip_ids` (every Bandai Namco take of the character, as the executor splits
+    them: `common.tasks.executor.env.labelled_clips`) in the training split."""
+    manifest = load_manifest()
+    by_take = unicon_take_split(Manifest(tuple(manifest.by_id(c) for c in clip_ids)), seed=split_seed)
+    return set(by_take.train)
+
+
+LOOP_SEARCH_S = 2.5
+"""A style clip longer than this is a take of several strides (with its own start and end), not
+one cycle: its loop is the span between the two frames, one in its first and one in its last
+third, whose poses are closest (`_loop_rows`)."""
+
+
+def _loop_rows(joints: np.ndarray, height: np.ndarray) -> tuple[int, int]:
+    """Rows (i, j) of the best loop in a take sampled on the control grid (`joints` `[R, nu]`
+    joint vectors, `height` `[R]` root heights): i in the first third, j in the last third, the
+    pair whose joint vectors and root heights differ least."""
+    r = len(joints)
+    first, last = np.arange(0, r // 3), np.arange(r - r // 3, r)
+    cost = np.linalg.norm(joints[first, None, :] - joints[None, last, :], axis=-1)
+    cost += 10.0 * np.abs(height[first, None] - height[None, last])
+    a, b = np.unravel_index(int(np.argmin(cost)), cost.shape)
+    return int(first[a]), int(last[b])
 
 
 @dataclass(frozen=True)
@@ -317,6 +365,9 @@ class KeyboardScheduler:
         period = m.duration_s
         n = max(int(round(period / self.dt)), 4)
         q = np.atleast_2d(m.qpos(np.arange(n + 1) * period / n))
+        if period > LOOP_SEARCH_S:  # a take of several strides: its closest-posed span
+            i, j = _loop_rows(self.layout.to_vector(q), q[:, 2])
+            q, n, period = q[i : j + 1], j - i, (j - i) * period / n
         travel = q[-1, 0:2] - q[0, 0:2]
         # NOTE: the clip's direction of travel is its frame: a root's own heading sways within a
         # stride and means nothing for a crawl (the pelvis's forward axis points at the floor).

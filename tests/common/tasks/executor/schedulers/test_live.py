@@ -23,7 +23,7 @@ from common.tasks.observations import heading, quat_to_mat
 from common.tasks.executor.schedulers.pose_blend import PoseMath
 from common.tasks.registry import make_env
 from common.tasks.executor.schedulers.factory import SCHEDULERS, make_scheduler
-from common.tasks.executor.schedulers.keyboard import KeyboardScheduler
+from common.tasks.executor.schedulers.keyboard import KeyboardScheduler, locomotion_styles
 from common.tasks.executor.schedulers.stitch import StitchScheduler
 from common.tasks.executor.schedulers.video import VideoScheduler
 from common.tasks.executor.schedulers.base import DatasetScheduler
@@ -288,6 +288,28 @@ def test_keyboard_turns_and_speeds_up(env):
     run(cycle)
     stopped = run(cycle)
     assert np.linalg.norm(stopped[-1, 0:2] - stopped[0, 0:2]) < 1e-9
+
+
+def test_keyboard_styles_come_from_the_library_and_a_take_loops_over_its_closest_span(env, pm):
+    """Every Bandai Namco walk, run and dash style is a keyboard style; a take of several strides
+    loops over a span of it whose seam is no bigger a jump than its own steps."""
+    styles = locomotion_styles()
+    assert {"walk", "run", "crawl", "happy_walk", "tired_run", "proud_dash", "elderly_walk"} <= set(styles)
+    assert styles["happy_walk"].startswith("humanoid/bandai/dataset-1_walk_happy_")
+    s = KeyboardScheduler(env.ref_model, env._motion, env.dt, style="happy_walk")
+    take_s = env._motion(styles["happy_walk"]).duration_s
+    cycle = s._cycle("happy_walk")
+    assert 1.0 < cycle.period_s < take_s * 2 / 3 and cycle.speed_mps > 0.5
+    loop = np.concatenate([cycle.q, cycle.q[:1]])  # round the loop and across its seam
+    steps = pm.joint_angle_change(loop[:-1], loop[1:]).max(axis=1)
+    assert steps[-1] <= 1.2 * steps[:-1].max() and steps.max() < 0.4
+    rng = np.random.default_rng(0)
+    s.begin(rng)
+    rows = []
+    for _ in range(2 * cycle.n):
+        rows.append(s.frame(0).qpos.copy())
+        s.advance(rng, rows[-1])
+    assert travel_heading(np.array(rows)) == pytest.approx(0.0, abs=math.radians(5))
 
 
 def test_keyboard_style_switch_is_smooth_and_keys_are_checked(env, pm):
