@@ -221,7 +221,7 @@ class TargetTable:
     """What a step reads of its environments' target frames, per schedule row: each
     environment's `DatasetScheduler` table (`kinematics_at`) of at most `rows` rows, kept in
     slot i of arrays `[N, rows, ...]`: the frames' `BodyKin` fields (`pos`, `rot`, `lin`, `ang`,
-    `com`), what the step derives from a frame alone (`rel`: `BodyKin.relative_positions`;
+    `com`), what the step derives from a frame alone (`rel`: `BodyKin.root_offsets`;
     `features`: o(X~), `agent_features`), `qpos`, `qvel`, the PD targets of a zero action (`pd`,
     `pd_targets`; pd actuation only), and `next_row` `[N]`: the row of the frame one control
     step ahead as of the last observation (what the next step's PD targets come from); per
@@ -449,7 +449,7 @@ class ExecutorEnv:
             raise ValueError(f"{r} schedule rows do not fit the target table's {t.rows}")
         kin = self.reference_kinematics(qpos, qvel)
         t.pos[s, :r], t.rot[s, :r], t.lin[s, :r], t.ang[s, :r], t.com[s, :r] = kin.pos, kin.rot, kin.lin, kin.ang, kin.com
-        t.rel[s, :r], t.features[s, :r] = kin.relative_positions(), agent_features(kin)
+        t.rel[s, :r], t.features[s, :r] = kin.root_offsets(), agent_features(kin)
         t.qpos[s, :r], t.qvel[s, :r] = qpos, qvel
         if t.pd is not None:
             t.pd[s, :r] = pd_targets(self.layout, qpos, qvel, self.pd_lead_s)
@@ -697,7 +697,7 @@ STEP_ARRAYS = ("warning.number", "ctrl", "qpos", "qvel")
 class Targets:
     """What a step reads of M environments' target frames: the tracked frame's (now: `com`
     `[M, 3]`, body positions `pos` `[M, B, 3]`, `rel` `[M, B - 1, 3]`
-    (`BodyKin.relative_positions`), `qpos` `[M, nq]`, `qvel` `[M, nv]`) and the observed frames'
+    (`BodyKin.root_offsets`), `qpos` `[M, nq]`, `qvel` `[M, nv]`) and the observed frames'
     (`ExecutorConfig.observed_offsets`, K of them, control steps ahead: o(X~) `features`
     `[M, K, F]`, root positions `root_pos` `[M, K, 3]` and rotations `root_rot` `[M, K, 3, 3]`)."""
 
@@ -728,7 +728,7 @@ def target_rows(envs: Sequence[ExecutorEnv], slots: np.ndarray | None) -> Target
     kin = BodyKin.stack([env.target_kinematics() for env in envs])
     frames = [env.scheduler.frame(0) for env in envs]
     now, ahead = kin[:, 0], kin[:, 1:]
-    return Targets(now.com, now.pos, now.relative_positions(), _stack([f.qpos for f in frames]),
+    return Targets(now.com, now.pos, now.root_offsets(), _stack([f.qpos for f in frames]),
                    _stack([f.qvel for f in frames]), agent_features(ahead), ahead.pos[..., 0, :], ahead.rot[..., 0, :, :])
 
 
@@ -773,7 +773,7 @@ def tracking_errors(envs: Sequence[ExecutorEnv], q: np.ndarray, actual: BodyKin,
     for i, before in enumerate(qpos_before or ()):
         mujoco.mj_differentiatePos(first.ref_model, qvel[i], first.dt, before, q[i])
     lay = first.layout
-    rel, rel_ref = actual.relative_positions(), target.rel
+    rel, rel_ref = rw.yaw_aligned(actual.root_offsets(), q[:, 3:7], qr[:, 3:7]), target.rel
     errors = np.empty((len(q), len(rw.TERMS)))
     errors[:, 0] = rw.com_errors(actual.com, target.com)
     errors[:, 1] = rw.root_rotation_errors(q[:, 3:7], qr[:, 3:7])

@@ -42,9 +42,17 @@ class BodyKin:
 
     @cached_property
     def heading_frame(self) -> np.ndarray:
-        """The root's heading frame `[..., 3, 3]` (yaw only; body x forward): `yaw_matrix(heading(root))`."""
+        """The root's heading frame `[..., 3, 3]` (yaw only): the root rotation's twist about world
+        z, atan2(R10 - R01, R00 + R11) (= 2 atan2(z, w) of its quaternion). For an upright root
+        that is the yaw of its forward axis (x); unlike that yaw, it stays defined when the
+        forward axis is vertical (a crawl, lying, a flip at +-90 degrees of pitch, where the
+        axis's yaw swung on a few degrees of pitch), and is singular only upside down."""
         root = self.rot[..., 0, :, :]
-        return yaw_matrices(np.arctan2(root[..., 1, 0], root[..., 0, 0]))
+        return yaw_matrices(np.arctan2(root[..., 1, 0] - root[..., 0, 1], root[..., 0, 0] + root[..., 1, 1]))
+
+    def root_offsets(self) -> np.ndarray:
+        """Non-root bodies relative to the root, in the world frame `[..., B - 1, 3]`."""
+        return self.pos[..., 1:, :] - self.pos[..., :1, :]
 
     def relative_positions(self) -> np.ndarray:
         """Non-root bodies relative to the root, in the root's heading frame `[..., B - 1, 3]`."""

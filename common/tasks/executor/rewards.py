@@ -6,8 +6,9 @@ Wang et al. 2020, eqs. 5-6), as pure numpy functions checked against hand comput
 - r_pr, root position: the centre of mass against the target's, err = ||c - c~||^2 (m^2), k = 10
   (DeepMimic's centre-of-mass term, which UniCon names as its root position term);
 - r_qr, root rotation: err = angle(q_r, q~_r)^2 (rad^2), k = 2 (UniCon's own term);
-- r_pj, joint positions: every body's position relative to the root in the root's heading
-  frame, err = (4 / B) sum_j ||p_j - p~_j||^2 over the B non-root bodies, k = 40. DeepMimic sums
+- r_pj, joint positions: every body's position relative to its own root, the character's turned
+  about the vertical by the yaw between the two roots (`yaw_aligned`: what a heading frame
+  removes, without one), err = (4 / B) sum_j ||p_j - p~_j||^2 over the B non-root bodies, k = 40. DeepMimic sums
   over its four end effectors with k = 40; UniCon penalizes all joints without giving a scale,
   so the sum is rescaled to four bodies' worth (a reconstruction, `ExecutorConfig.reward_scales`):
   the term falls to 0.1 at an RMS body error of 12 cm whatever the body count;
@@ -61,9 +62,27 @@ def root_rotation_errors(quat: np.ndarray, quat_ref: np.ndarray) -> np.ndarray:
     return _square_each(quat_angle(_contiguous(quat), _contiguous(quat_ref)))
 
 
+def yaw_aligned(offsets: np.ndarray, quat: np.ndarray, quat_ref: np.ndarray) -> np.ndarray:
+    """A character's body offsets from its root `[..., B, 3]` (world frame) turned about world z
+    by the twist about z of the rotation from its root (quaternion (w, x, y, z) `[..., 4]`) to
+    the reference's root (`quat_ref`): delta = 2 atan2(z, w) of q_ref q^-1. For upright roots
+    that is the difference of their headings, so what r_pj compares is what comparing both in
+    their own heading frames compared (a yaw drift is r_qr's, not r_pj's); unlike a heading
+    (the yaw of the root's forward axis, undefined when that axis is vertical: a crawl, the
+    flight of a flip, where 3 degrees of pitch flipped it and ended the episode), delta is
+    defined whenever the two roots are less than half a turn apart."""
+    q, r = _contiguous(quat), _contiguous(quat_ref)
+    w = r[..., 0] * q[..., 0] + r[..., 1] * q[..., 1] + r[..., 2] * q[..., 2] + r[..., 3] * q[..., 3]
+    z = -r[..., 0] * q[..., 3] + r[..., 3] * q[..., 0] - r[..., 1] * q[..., 2] + r[..., 2] * q[..., 1]
+    delta = 2.0 * np.arctan2(z, w)
+    c, s = np.cos(delta)[..., None], np.sin(delta)[..., None]
+    a = _contiguous(offsets)
+    return np.stack([c * a[..., 0] - s * a[..., 1], s * a[..., 0] + c * a[..., 1], a[..., 2]], axis=-1)
+
+
 def joint_position_errors(rel_pos: np.ndarray, rel_pos_ref: np.ndarray) -> np.ndarray:
-    """(4 / B) sum_j ||p_j - p~_j||^2 (m^2) of body positions `[..., B, 3]`, each relative to its
-    own character's root and expressed in that root's heading frame (see module docstring)."""
+    """(4 / B) sum_j ||p_j - p~_j||^2 (m^2) of body offsets from the root `[..., B, 3]`, the
+    character's `yaw_aligned` to the reference's (see module docstring)."""
     d = _contiguous(rel_pos) - _contiguous(rel_pos_ref)
     lead = d.shape[:-2]
     return np.add.reduce((d * d).reshape(*lead, -1), axis=-1) * END_EFFECTORS_IN_DEEPMIMIC / max(1, d.shape[-2])

@@ -72,7 +72,8 @@ class BreakHook(probe_cli.StepHook):
                 self.first_pose, self.first_pose_step = fell, k
         if self.body_sq is None and terms["joint_position"] < self.alpha:
             actual, target = env.tracking_kinematics()
-            d = actual.relative_positions() - target.relative_positions()
+            quat, quat_ref = env.data.qpos[3:7], env.scheduler.frame(0).qpos[3:7]
+            d = rw.yaw_aligned(actual.root_offsets(), quat, quat_ref) - target.root_offsets()  # as r_pj compares them
             self.body_sq = np.sum(d * d, axis=1)
             self.offsets = root_offsets(actual, target)
 

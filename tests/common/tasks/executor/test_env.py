@@ -17,7 +17,7 @@ from common.tasks.body_config import BodyConfig
 from common.tasks.executor.env import ExecutorEnv, effort_factors, executor_clips, humanoid_clips
 from common.tasks.executor.config import ExecutorConfig
 from common.tasks.executor.observations import BodyKin, agent_features, observation, target_root_pose
-from common.tasks.observations import yaw_matrix
+from common.tasks.observations import heading, yaw_matrix
 from common.tasks.registry import make_env
 
 CFG = TaskConfig(name="executor", control_hz=60.0, sim_hz=240.0, episode_s=5.0,
@@ -55,6 +55,58 @@ def test_each_term_by_hand():
     w = (0.2, 0.2, 0.1, 0.4, 0.1)
     assert rw.weighted_sum(terms, w) == pytest.approx(sum(wi * expected[t] for wi, t in zip(w, rw.TERMS)))
     assert rw.weighted_sum({t: 1.0 for t in rw.TERMS}, w) == pytest.approx(1.0)
+
+
+def _quat_mul(a, b):
+    w1, x1, y1, z1 = a
+    w2, x2, y2, z2 = b
+    return np.array([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2])
+
+
+def _about(axis: int, angle: float) -> np.ndarray:
+    q = np.zeros(4)
+    q[0], q[1 + axis] = math.cos(angle / 2), math.sin(angle / 2)
+    return q
+
+
+def _mat(q) -> np.ndarray:
+    m = np.zeros(9)
+    mujoco.mju_quat2Mat(m, np.asarray(q, float))
+    return m.reshape(3, 3)
+
+
+def test_joint_positions_are_compared_yaw_aligned_without_a_heading_singularity():
+    """r_pj's comparison (`rw.yaw_aligned`): for upright roots it is the old heading-frame one
+    (a yaw drift costs r_pj nothing); with the root pitched 90 degrees (a crawl, a flip's
+    flight), where a heading frame flipped on 3 degrees of pitch, 3 degrees cost what they cost
+    upright."""
+    rng = np.random.default_rng(0)
+    body = rng.normal(0, 0.4, (14, 3))  # a pose: body offsets in the root's frame
+
+    def offsets(q):
+        return body @ _mat(q).T  # world-frame offsets of the pose under root rotation q
+
+    def heading_frame_error(q, q_ref):  # the old r_pj: each in its own heading frame
+        rel = [offsets(x) @ yaw_matrix(heading(_mat(x))) for x in (q, q_ref)]
+        return rw.joint_position_error(*rel)
+
+    def aligned_error(q, q_ref):
+        return rw.joint_position_error(rw.yaw_aligned(offsets(q), q, q_ref), offsets(q_ref))
+
+    ref = _quat_mul(_about(2, 0.7), _about(0, 0.1))  # upright, heading 0.7 rad, a little roll
+    drifted = _quat_mul(_about(2, 0.35), ref)  # the same pose turned 20 degrees about the vertical
+    tilted = _quat_mul(ref, _about(1, math.radians(3)))
+    assert aligned_error(drifted, ref) == pytest.approx(0.0, abs=1e-12)
+    assert aligned_error(tilted, ref) == pytest.approx(heading_frame_error(tilted, ref), rel=0.05)
+    pitched = _quat_mul(_about(2, 0.7), _about(1, math.pi / 2))  # forward axis straight down
+    pitched_off = _quat_mul(pitched, _about(1, math.radians(3)))
+    upright_cost = aligned_error(tilted, ref)
+    assert aligned_error(pitched_off, pitched) == pytest.approx(upright_cost, rel=0.5)
+    assert heading_frame_error(pitched_off, pitched) > 20 * upright_cost  # the old frame's flip
+    batch = rw.yaw_aligned(np.stack([offsets(drifted), offsets(pitched_off)]), np.stack([drifted, pitched_off]),
+                           np.stack([ref, pitched]))
+    assert np.array_equal(batch[1], rw.yaw_aligned(offsets(pitched_off), pitched_off, pitched))
 
 
 def test_termination_rules():
