@@ -87,13 +87,16 @@ class LearnerTransport:
         self.resumed = False
         """Set by `load_state_dict`: each actor's first message sets its baseline, not seq 0."""
         self.resume_marks: dict[int, int] = {}
-        """Each actor's highest number in the checkpoint resumed from: what its first message
-        after the resume skips beyond it was numbered by the session that died and never reached
-        a checkpoint (received by that session after its last one, or in flight when it died):
-        `lost/unrolls_at_resume`."""
+        """Each actor's highest number in the checkpoint resumed from, until its first number past
+        it: the numbers that one skips were sent to the session that died before checkpointing
+        them (received after its last checkpoint, or in flight), `lost/unrolls_at_resume`, not
+        wire gaps. The mark is the actor's high-water mark from the start, so a number below it
+        (an actor numbering from 0 again, or a spoofed 0) cannot set a low baseline that the
+        actor's real numbers would then seem to jump from."""
         self.resume_allowance = MAX_SEQ_JUMP
-        """Most unrolls one actor's first message after a resume may book as lost there; the
-        run raises it by what the killed session's extra iterations could have numbered."""
+        """Most numbers an actor's first number past its resume mark may skip (more is refused as
+        `seq_jump`); the run raises it by what the killed session's extra iterations could have
+        numbered."""
         self.received: collections.Counter[int] = collections.Counter()
         """Valid unrolls received per actor."""
         self.sampler_outages: dict[int, int] = {}
@@ -201,25 +204,39 @@ class LearnerTransport:
         make the actor's next real unroll look like a jump over its whole sequence. A message
         that would skip more than `MAX_SEQ_JUMP` numbers is refused (`WireError` "seq_jump") and
         counts no gap; a next unroll that follows on from the refused number is accepted (an
-        actor whose ledger numbers on from an earlier session), a heartbeat never is."""
+        actor whose ledger numbers on from an earlier session), a heartbeat never is. After a
+        resume, an actor's first number past its checkpoint mark (`resume_marks`) books what it
+        skips as `lost/unrolls_at_resume`, up to `resume_allowance`, instead of as a gap."""
         if actor_id not in self.last_seq and self.resumed:
-            baseline = seq - 1 if unroll else seq  # a resumed learner's baseline
-            if baseline >= 0:
-                self.last_seq[actor_id] = self.numbering[actor_id] = baseline
-                self._book_resume_loss(actor_id, baseline)
+            mark = self.resume_marks.get(actor_id)
+            if mark is not None:  # the checkpoint's high-water mark: what a low number cannot undercut
+                self.last_seq[actor_id] = self.numbering[actor_id] = mark
+            else:
+                baseline = seq - 1 if unroll else seq  # a resumed learner's baseline
+                if baseline >= 0:
+                    self.last_seq[actor_id] = self.numbering[actor_id] = baseline
         high = self.last_seq.get(actor_id, -1)
         current = self.numbering.get(actor_id, high)
         due = seq - 1 if unroll else seq
         base = high if due >= high else current if due >= current else None
-        if base is not None and due - base > MAX_SEQ_JUMP:
+        resuming = actor_id in self.resume_marks and base == high
+        limit = self.resume_allowance if resuming else MAX_SEQ_JUMP
+        if base is not None and due - base > limit:
             refused = self.refused_at.get(actor_id)
             if refused is None or not unroll or not refused <= due <= refused + MAX_SEQ_JUMP:
                 self.refused_at[actor_id] = seq
                 raise wire.WireError(f"{'unroll' if unroll else 'heartbeat'} seq {seq} of actor {actor_id} skips "
-                                     f"{due - base} numbers after {base}; allowed: at most {MAX_SEQ_JUMP}",
+                                     f"{due - base} numbers after {base}; allowed: at most {limit}",
                                      "seq_jump")
             base = refused
         self.refused_at.pop(actor_id, None)
+        if resuming:
+            # The first number past the checkpoint's mark: those skipped were numbered before the
+            # resume and taken (received, or in flight) by the session that died, not lost on the wire.
+            del self.resume_marks[actor_id]
+            if base is not None and due > base:
+                self.counters["lost/unrolls_at_resume"] += due - base
+                base = due
         if base is not None and due > base:
             gap = due - base
             if self.counters["seq_gap_unrolls"] == 0:
@@ -234,21 +251,6 @@ class LearnerTransport:
         reached = self.numbering.get(actor_id, -1)
         if reached > high:
             self.last_seq[actor_id] = reached
-
-    def _book_resume_loss(self, actor_id: int, baseline: int) -> None:
-        """An actor's first message after a resume: the numbers between the checkpoint's mark and
-        `baseline` were sent to a session that died before checkpointing them. Counted, up to
-        `resume_allowance` (more is no honest actor's: logged, not counted)."""
-        mark = self.resume_marks.pop(actor_id, None)
-        if mark is None or baseline <= mark:
-            return  # a clean stop's checkpoint (nothing skipped), or an actor numbering from 0 again
-        lost = baseline - mark
-        if lost > self.resume_allowance:
-            log.warning("actor %d: first number %d after the resume skips %d beyond the checkpoint's %d; more than "
-                        "the %d the killed session could have numbered: not counted", actor_id, baseline + 1, lost, mark,
-                        self.resume_allowance)
-            return
-        self.counters["lost/unrolls_at_resume"] += lost
 
     def _book(self, msg, policy_version: int, max_policy_lag: int) -> wire.UnrollMsg | None:
         if isinstance(msg, wire.UnrollMsg) and msg.policy_version > policy_version:

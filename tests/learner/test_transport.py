@@ -174,23 +174,30 @@ def test_a_resumed_learner_counts_what_the_killed_session_took_after_its_checkpo
         t.close()
 
 
-def test_a_clean_stop_resumes_with_nothing_lost_and_a_forged_first_number_books_at_most_the_allowance():
+def test_after_a_resume_a_spoofed_low_number_or_an_implausible_jump_books_nothing():
     """After a clean stop the checkpoint holds each actor's last number: the next one follows on
-    and nothing is booked. A first number far beyond the checkpoint (more than the killed
-    session could have numbered) is taken as the baseline but books nothing."""
-    before = _transport()
-    before.last_seq.update({0: 7, 1: 10})
+    and nothing is booked. A spoofed seq 0 arriving before an actor's first real message cannot
+    set a low baseline (the checkpoint's mark is the high-water mark), so the real numbers that
+    follow book only what the killed session took (here 11-19), no phantom gap. A first number
+    past the mark by more than the killed session could have numbered is refused, and the
+    unroll after it, following on, is taken without booking the jump."""
+    before = _transport(num_actors=3)
+    before.last_seq.update({0: 7, 1: 10, 2: 5})
     state = before.state_dict()
     before.close()
-    t = _transport()
+    t = _transport(num_actors=3)
     t.load_state_dict(state)
     t.resume_allowance = 50
     push = _push(t)
     try:
         push.send_multipart(wire.encode(_unroll(8, actor_id=0)))
-        push.send_multipart(wire.encode(_unroll(10_000, actor_id=1)))
-        assert [u.seq for u in _drain(t)] == [8, 10_000]
-        assert t.counters["lost/unrolls_at_resume"] == 0 and t.counters["seq_gap_unrolls"] == 0
+        push.send_multipart(wire.encode(_unroll(0, actor_id=1)))  # the spoof, first
+        push.send_multipart(wire.encode(_unroll(20, actor_id=1)))
+        push.send_multipart(wire.encode(_unroll(10_000, actor_id=2)))
+        push.send_multipart(wire.encode(_unroll(10_001, actor_id=2)))
+        assert [u.seq for u in _drain(t)] == [8, 0, 20, 10_001]
+        assert t.counters["lost/unrolls_at_resume"] == 9 and t.counters["seq_gap_unrolls"] == 0
+        assert t.counters["rejected/seq_jump"] == 1 and t.counters["seq_restarts"] == 1
     finally:
         push.close()
         t.close()
