@@ -134,7 +134,8 @@ def report(rec: SoakRecord, out=print) -> bool:
     out(f"bookkeeping:      divergences {div:,d} over {eps:,d} episodes" + (" (more than episodes: forged)" if forged else "")
         + f", sequence restarts {c.get('seq_restarts', 0):,d}")
     ok &= not forged
-    named = {p: _sum({**m, **{f'wire/{k}': v for k, v in c.items()}}, p) for p in ("wire/dropped_", "lost/")}
+    counted = {**m, **{k if k.startswith("lost/") else f"wire/{k}": v for k, v in c.items()}}
+    named = {p: _sum(counted, p) for p in ("wire/dropped_", "lost/")}
     named["faults/"] = _sum(m, "faults/")
     out("counters by name: " + "; ".join(f"{p}* {v if v else 'absent'}" for p, v in named.items()))
 
