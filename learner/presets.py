@@ -147,16 +147,17 @@ def _track_preset() -> RunConfig:
     the task from `common.tasks.executor.presets.track_config`, and a learner set for it.
 
     Deviations from `executor-pd` and why: fixed action noise of 0.05 rad (`TRACK_LOG_STD`);
-    32,768 transitions per update (MimicKit 131 k, PHC 98 k, UniCon 262 k; the executor-pd's
-    8,192 gave one clip's rare frames a handful of samples per update) in 5 epochs of 4,096 (the
-    larger minibatch is cheaper per sample, docs/benchmarks.md); the step size by an adaptive KL
-    target of 0.01 instead of a fixed lr with a KL stop, which moved the mean about 0.004 rad per
-    update; gamma 0.99 (MimicKit, PHC, mjlab; 0.95 valued 20 steps ahead, a third of a second)."""
+    the step size by an adaptive KL target of 0.01 instead of a fixed lr with a KL stop, which
+    moved the mean about 0.004 rad per update; gamma 0.99 (MimicKit, PHC, mjlab; 0.95 valued 20
+    steps ahead, a third of a second). Kept from it: 8,192 transitions per update in 5 epochs of
+    512; at an equal budget of samples and of wall time it took one clip to 95% in 491,520 steps
+    where 32,768 in 5 x 4,096 (the other systems' tens of thousands) had 62% at 819,200
+    (docs/experiments/2026-12-07-executor-track-equal-budget.md)."""
     base = _executor_preset("track")
     return dataclasses.replace(
-        base, name="executor-track", total_env_steps=200_000_000, steps_per_iteration=32_768, checkpoint_every=5,
+        base, name="executor-track", total_env_steps=200_000_000, steps_per_iteration=8192, checkpoint_every=20,
         policy=PolicyConfig(hidden=(256, 256, 256), init_log_std=TRACK_LOG_STD, learn_log_std=False),
-        ppo=PPOConfig(gamma=0.99, epochs=5, minibatch=4096, lr=1e-4, lr_schedule="adaptive", kl_target=0.01,
+        ppo=PPOConfig(gamma=0.99, epochs=5, minibatch=512, lr=1e-4, lr_schedule="adaptive", kl_target=0.01,
                       proximal_anchor=True),
         sampler=dataclasses.replace(base.sampler, clip_weighting="failure", clip_floor=0.1, time_bin_s=0.5),
     )
