@@ -94,6 +94,12 @@ def test_a_killed_learner_resumes_every_counter_and_counts_what_it_lost(tmp_path
     assert faults["health"]["stalls"] > saved["faults"]["health"]["stalls"]
     for name, value in saved["transport"]["counters"].items():
         assert final["transport"]["counters"][name] >= value, name
+    # The unrolls the killed session took after its checkpoint: its lost iterations' worth (8 of
+    # 128 steps each per iteration), and at most the part of an iteration it had begun, 8 more.
+    per_unroll = 32 * 4
+    at_resume = final["transport"]["counters"].get("lost/unrolls_at_resume", 0)
+    assert lost_steps // per_unroll <= at_resume <= lost_steps // per_unroll + 8, at_resume
+    assert final["transport"]["counters"].get("seq_gap_unrolls", 0) == saved["transport"]["counters"].get("seq_gap_unrolls", 0)
     assert final["transport"]["bytes_received"] > saved["transport"]["bytes_received"]
     # The value pairs the sampler had taken after the checkpoint and no longer holds.
     came_back = int(re.search(r"sampler (?:kept its own state file|restored from the checkpoint) \((\d+) pairs", out).group(1))
