@@ -337,7 +337,8 @@ class LearnerTransport:
         checkpoints after its drain, so they are none), counted as `lost/unrolls_at_resume`."""
         self.last_seq, self.numbering, self.refused_at = {}, {}, {}
         self.resume_marks = {}
-        for k, v in state.get("last_seq", {}).items():
+        marks = state.get("last_seq")
+        for k, v in (marks.items() if isinstance(marks, dict) else ()):
             if str(k).isdigit() and isinstance(v, int) and not isinstance(v, bool) and 0 <= v < 2**53:
                 self.resume_marks[int(k)] = v
         self.resumed = True
