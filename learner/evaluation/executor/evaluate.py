@@ -41,6 +41,7 @@ from typing import Any, Callable, Iterable
 import numpy as np
 import torch
 
+from common.motion import bandai
 from common.motion.errors import ClipError
 from common.motion.library import import_source
 from common.motion.mirror import MIRROR_SUFFIX
@@ -477,17 +478,40 @@ def stats(records: list[dict]) -> dict[str, Any]:
     }
 
 
-def group_stats(records: list[dict], key: str) -> dict[str, dict[str, Any]]:
-    """{value of `key` (clip_id, label or split): `stats`} in first-seen order."""
+def group_stats(records: list[dict], key) -> dict[str, dict[str, Any]]:
+    """{value of `key` (clip_id, label or split; or a function of the record): `stats`} in
+    first-seen order; a record whose key is None is left out."""
     groups: dict[str, list[dict]] = defaultdict(list)
     for r in records:
-        groups[r[key]].append(r)
+        k = key(r) if callable(key) else r[key]
+        if k is not None:
+            groups[k].append(r)
     return {k: stats(v) for k, v in groups.items()}
 
 
+def content_and_style(label: str) -> tuple[str, str] | None:
+    """(content, style) of a two-level labelled take (`root/bandai/<content>/<style>`, the Bandai
+    Namco library's labels), None for another label."""
+    parts = label.split("/")
+    if len(parts) == 4 and "/".join(parts[:2]) == bandai.LABEL_PREFIX:
+        return parts[2], parts[3]
+    return None
+
+
+def by_split(records: list[dict], level: int) -> dict[str, dict[str, dict[str, Any]]]:
+    """{content (level 0) or style (level 1): {split: `stats`}} over the two-level labelled takes,
+    sorted by name; empty when no record is one."""
+    out: dict[str, dict[str, dict[str, Any]]] = {}
+    for split in SPLITS:
+        part = [r for r in records if r["split"] == split]
+        for name, s in group_stats(part, lambda r: (content_and_style(r["label"]) or (None, None))[level]).items():
+            out.setdefault(name, {})[split] = s
+    return dict(sorted(out.items()))
+
+
 def summarize(records: list[dict], clips: list[EvalClip]) -> dict[str, Any]:
-    """Per clip (with its label and split), per class (label), per split (in `SPLITS` order)
-    and overall."""
+    """Per clip (with its label and split), per class (label), per split (in `SPLITS` order),
+    per content and per style of the two-level labelled takes (each by split), and overall."""
     per_clip = group_stats(records, "clip_id")
     meta = {c.clip_id: c for c in clips}
     for cid, s in per_clip.items():
@@ -497,5 +521,7 @@ def summarize(records: list[dict], clips: list[EvalClip]) -> dict[str, Any]:
         "overall": stats(records),
         "splits": {k: splits[k] for k in SPLITS if k in splits},
         "classes": dict(sorted(group_stats(records, "label").items())),
+        "contents": by_split(records, 0),
+        "styles": by_split(records, 1),
         "clips": per_clip,
     }

@@ -15,8 +15,9 @@ first 80%. What is measured, and why one run per episode serves every criterion:
 `learner/evaluation/executor/evaluate.py`.
 
 Writes into `--out` (default `<checkpoint dir>/eval_clips`): `results.json` (meta, summary per
-split, class and clip, one record per episode), `summary.md` (the tables), `clips.png` (success
-rate per clip coloured by split, PHC success as dots) and, unless --no-render, `best.png` /
+split, class, content, style and clip, one record per episode), `summary.md` (the tables),
+`clips.png` (success rate per clip coloured by split, PHC success as dots), `styles.png` (success
+over the labelled library's content x style, per split, when it has such takes) and, unless --no-render, `best.png` /
 `worst.png` strips of the best and worst clip from its first start (GIFs too with --gif).
 Prints one line per split and one overall.
 """
@@ -30,6 +31,7 @@ from pathlib import Path
 from typing import Annotated, Any, ClassVar
 
 import matplotlib
+import numpy as np
 import matplotlib.pyplot as plt
 import tyro
 from matplotlib.patches import Patch
@@ -176,6 +178,8 @@ def markdown(loaded: checkpoint.Loaded, summary: dict, meta: dict, files: list[s
         *([ceiling_line(summary["zero_action_ceiling"]), ""] if summary.get("zero_action_ceiling") else []),
         "## By class", "", "| class " + STATS_HEAD, rule,
         *(stats_row(f"`{k}`", s) for k, s in summary["classes"].items()), "",
+        *label_level_table("content", summary.get("contents", {})),
+        *label_level_table("style", summary.get("styles", {})),
         "## By clip", "",
         "| clip | split | class | success % | pose success % | PHC success % | MPJPE mm | reward/step | tracked % "
         "| ended most by |",
@@ -190,6 +194,26 @@ def markdown(loaded: checkpoint.Loaded, summary: dict, meta: dict, files: list[s
     return "\n".join(lines)
 
 
+def label_level_table(level: str, groups: dict[str, dict[str, dict]]) -> list[str]:
+    """Markdown lines of one table: per content or per style of the two-level labelled takes
+    (`xe.by_split`), success, PHC success and MPJPE on each split side by side; none when there
+    are no such takes."""
+    if not groups:
+        return []
+    splits = [k for k in xe.SPLITS if any(k in g for g in groups.values())]
+    head = f"| {level} | " + " | ".join(f"{k} starts | {k} success % | {k} PHC success % | {k} MPJPE mm" for k in splits) + " |"
+    rows = []
+    for name, by in groups.items():
+        cells = []
+        for k in splits:
+            s = by.get(k)
+            cells.append(" | ".join(["-"] * 4) if s is None else
+                         f"{s['episodes']} | {_f(s['success_pct'])} | {_f(s['phc_success_pct'])} | {_f(s['mpjpe_mm'])}")
+        rows.append(f"| `{name}` | " + " | ".join(cells) + " |")
+    return [f"## By {level} (the labelled library's two levels, each over all its takes of a split)", "", head,
+            "|---" * (1 + 4 * len(splits)) + "|", *rows, ""]
+
+
 def ceiling_line(c: dict) -> str:
     """The zero-action ceiling (`xe.zero_action_ceiling`) in one markdown sentence."""
     splits = "; ".join(f"{k} {s['failed']} of {s['episodes']}" for k, s in c["by_split"].items())
@@ -201,22 +225,67 @@ def ceiling_line(c: dict) -> str:
             f"{_f(c['ceiling_pct'])}% ({_f(c['pose_ceiling_pct'])}% for pose success){policy}.")
 
 
+MAX_NAMED_CLIPS = 80
+"""Above this many clips the per-clip chart sorts the bars by success and names none (a library
+run's 486 names would make it metres wide); `styles.png` then shows the library's structure."""
+
+
 def plot_clips(summary: dict, path: Path, title: str = "") -> Path:
-    """Bar chart of the success rate per clip, coloured by split, PHC success as dots."""
+    """Bar chart of the success rate per clip, coloured by split, PHC success as dots; with more
+    than `MAX_NAMED_CLIPS` clips, each split's bars sorted by success and unnamed."""
     matplotlib.use("Agg")
     clips = sorted(summary["clips"].items(), key=lambda kv: xe.SPLITS.index(kv[1]["split"]))
+    named = len(clips) <= MAX_NAMED_CLIPS
+    if not named:
+        clips.sort(key=lambda kv: (xe.SPLITS.index(kv[1]["split"]), -kv[1]["success_pct"], -kv[1]["phc_success_pct"]))
     names = [c for c, _ in clips]
-    fig, ax = plt.subplots(figsize=(max(5.0, 0.35 * len(names) + 1.5), 4.2), dpi=120)
+    width = 0.35 * len(names) + 1.5 if named else 12.0
+    fig, ax = plt.subplots(figsize=(max(5.0, width), 4.2), dpi=120)
     x = range(len(names))
-    ax.bar(x, [s["success_pct"] for _, s in clips], color=[SPLIT_COLOURS[s["split"]] for _, s in clips])
-    ax.scatter(x, [s["phc_success_pct"] for _, s in clips], marker="o", s=14, c="black", zorder=3)
-    ax.set_xticks(list(x), [n.replace("humanoid3d_", "").replace("humanoid/", "") for n in names], rotation=70,
-                  fontsize=7, ha="right")
+    ax.bar(x, [s["success_pct"] for _, s in clips], color=[SPLIT_COLOURS[s["split"]] for _, s in clips],
+           width=0.8 if named else 1.0)
+    ax.scatter(x, [s["phc_success_pct"] for _, s in clips], marker="o", s=14 if named else 3, c="black", zorder=3)
+    if named:
+        ax.set_xticks(list(x), [n.replace("humanoid3d_", "").replace("humanoid/", "") for n in names], rotation=70,
+                      fontsize=7, ha="right")
+    else:
+        ax.set_xticks([])
+        ax.set_xlabel(f"{len(names)} clips, each split sorted by success")
     ax.set_ylim(0, 105)
     ax.set_ylabel("success % (bars), PHC success % (dots)")
     present = [k for k in xe.SPLITS if any(s["split"] == k for _, s in clips)]
     ax.legend([Patch(color=SPLIT_COLOURS[k]) for k in present], present, fontsize=7, loc="upper right", framealpha=0.6)
     ax.set_title(title, fontsize=9)
+    return eval_plots.save_figure(fig, path)
+
+
+def plot_styles(records: list[dict], path: Path, title: str = "") -> Path | None:
+    """Heat map of success % over the labelled library's content (rows) x style (columns), one
+    panel per split (train, test); empty cells: no take of that pair in the split. None (and no
+    file) when no episode is of a two-level labelled take."""
+    labelled = [(r, xe.content_and_style(r["label"])) for r in records]
+    labelled = [(r, cs) for r, cs in labelled if cs is not None]
+    if not labelled:
+        return None
+    matplotlib.use("Agg")
+    contents = sorted({cs[0] for _, cs in labelled})
+    styles = sorted({cs[1] for _, cs in labelled})
+    splits = [k for k in xe.SPLITS if any(r["split"] == k for r, _ in labelled)]
+    fig, axes = plt.subplots(1, len(splits), figsize=(0.32 * len(styles) * len(splits) + 3.5, 0.3 * len(contents) + 2.0),
+                             dpi=120, squeeze=False)
+    for ax, split in zip(axes[0], splits):
+        grid = np.full((len(contents), len(styles)), np.nan)
+        for i, c in enumerate(contents):
+            for j, st in enumerate(styles):
+                cell = [r["success"] for r, cs in labelled if r["split"] == split and cs == (c, st)]
+                if cell:
+                    grid[i, j] = 100.0 * float(np.mean(cell))
+        im = ax.imshow(grid, vmin=0, vmax=100, cmap="viridis", aspect="auto")
+        ax.set_xticks(range(len(styles)), styles, rotation=70, fontsize=6, ha="right")
+        ax.set_yticks(range(len(contents)), contents if ax is axes[0][0] else [""] * len(contents), fontsize=6)
+        ax.set_title(f"{split}", fontsize=8)
+    fig.colorbar(im, ax=axes[0][-1], shrink=0.8, label="success %")
+    fig.suptitle(title, fontsize=9)
     return eval_plots.save_figure(fig, path)
 
 
@@ -283,6 +352,8 @@ def evaluate_checkpoint(loaded: checkpoint.Loaded, clips: list[xe.EvalClip], sta
     (out / "results.json").write_text(json.dumps(result, indent=1) + "\n")
     files = [str(out / "results.json"), str(plot_clips(summary, out / "clips.png",
                                                        f"{loaded.name}: success per clip ({starts} starts each)"))]
+    styles_png = plot_styles(records, out / "styles.png", f"{loaded.name}: success by content x style ({starts} starts per take)")
+    files += [str(styles_png)] if styles_png else []
     if render and not zero_action:
         best, worst = best_and_worst(summary)
         by_id = {c.clip_id: c for c in clips}

@@ -129,3 +129,40 @@ def test_summary_groups_by_clip_class_and_split() -> None:
     assert s["clips"]["a"]["mpjpe_mm"] == 30.0 and s["clips"]["a"]["mpjpe_mm_success"] == 20.0
     assert s["clips"]["b"]["failed_terms"] == {"joint_position": 1} and s["clips"]["b"]["split"] == "test"
     assert list(s["classes"]) == ["root/x", "root/y"]
+
+
+def test_summary_groups_labelled_takes_by_content_and_style_per_split() -> None:
+    from learner.evaluation.executor import report
+
+    base = {"planned_steps": 10, "steps": 10, "phc_success": True, "fail_step": None, "failed_term": None,
+            "diverged": False, "tracked_frac": 1.0, "return": 5.0, "return_per_planned_step": 0.5,
+            "reward_per_step": 0.5, "mpjpe_mm": 20.0, "global_mpe_mm": 30.0}
+    takes = [("w1", "root/bandai/walk/angry", "train", True), ("w2", "root/bandai/walk/happy", "train", False),
+             ("w3", "root/bandai/walk/angry", "test", False), ("r1", "root/bandai/run/angry", "train", True),
+             ("k", "root/acrobatics/kick", "train", True)]
+    clips = [xe.EvalClip(c, label, split) for c, label, split, _ in takes]
+    recs = [{**base, "clip_id": c, "label": label, "split": split, "success": ok} for c, label, split, ok in takes]
+    s = xe.summarize(recs, clips)
+    assert list(s["contents"]) == ["run", "walk"] and list(s["styles"]) == ["angry", "happy"]
+    assert s["contents"]["walk"]["train"]["success_pct"] == 50.0 and s["contents"]["walk"]["test"]["success_pct"] == 0.0
+    assert s["styles"]["angry"]["train"]["episodes"] == 2 and s["styles"]["angry"]["train"]["success_pct"] == 100.0
+    assert "test" not in s["styles"]["happy"]  # the kick's label is not two-level: in no style row
+    lines = report.label_level_table("style", s["styles"])
+    assert lines[0].startswith("## By style") and "| `happy` | 1 | 0.0 | 100.0 | 20.0 | - | - | - | - |" in lines
+    assert report.label_level_table("style", {}) == []
+
+
+def test_a_library_evaluation_draws_a_content_by_style_map_and_an_unnamed_clip_profile(tmp_path) -> None:
+    from learner.evaluation.executor import report
+
+    base = {"planned_steps": 10, "steps": 10, "phc_success": True, "fail_step": None, "failed_term": None,
+            "diverged": False, "tracked_frac": 1.0, "return": 5.0, "return_per_planned_step": 0.5,
+            "reward_per_step": 0.5, "mpjpe_mm": 20.0, "global_mpe_mm": 30.0}
+    recs = [{**base, "clip_id": f"t{k}", "label": f"root/bandai/{'walk' if k % 2 else 'run'}/s{k % 5}",
+             "split": "test" if k % 7 == 0 else "train", "success": k % 3 == 0} for k in range(report.MAX_NAMED_CLIPS + 5)]
+    clips = [xe.EvalClip(r["clip_id"], r["label"], r["split"]) for r in recs]
+    summary = xe.summarize(recs, clips)
+    for png in (report.plot_clips(summary, tmp_path / "clips.png"), report.plot_styles(recs, tmp_path / "styles.png")):
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert report.plot_styles([{**recs[0], "label": "root/acrobatics/kick"}], tmp_path / "none.png") is None
+    assert not (tmp_path / "none.png").exists()

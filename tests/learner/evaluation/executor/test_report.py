@@ -31,7 +31,8 @@ def test_evaluate_writes_results_summary_chart_and_strips(run_dir: Path, tmp_pat
     res = json.loads((out / "results.json").read_text())
     assert set(res) == {"meta", "summary", "episodes"}
     assert res["meta"]["starts"] == 2 and res["meta"]["clips"] == ["humanoid3d_walk", "humanoid3d_run"]
-    assert set(res["summary"]) == {"overall", "splits", "classes", "clips", "zero_action_ceiling"}
+    assert set(res["summary"]) == {"overall", "splits", "classes", "contents", "styles", "clips", "zero_action_ceiling"}
+    assert res["summary"]["contents"] == {} and res["summary"]["styles"] == {}  # no two-level labelled take here
     assert set(res["summary"]["splits"]) == {"train", "test"}
     assert len(res["episodes"]) == 4 and {e["start_s"] for e in res["episodes"]} >= {0.0}
     for key in ("success_pct", "phc_success_pct", "mpjpe_mm", "reward_per_step"):
