@@ -75,7 +75,9 @@ class ParamSpace:
         else:
             vec = np.asarray(values, dtype=np.float64).reshape(-1)
             if vec.shape[0] != self.dim:
-                raise ParamError(f"expected {self.dim} values for {list(self.names)}, got {vec.shape[0]}")
+                allowed = ", ".join(self.describe(i) for i in range(self.dim))
+                raise ParamError(f"expected {self.dim} values for {list(self.names)}, got {vec.shape[0]}: "
+                                 f"{vec.tolist()}; allowed: {allowed}")
         for i, v in enumerate(vec):
             if not np.isfinite(v):
                 raise ParamError(f"parameter {self.names[i]!r} = {v} is not a finite number; allowed: {self.describe(i)}")

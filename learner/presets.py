@@ -163,9 +163,18 @@ def _track_preset() -> RunConfig:
     )
 
 
+def _shape_executor_preset() -> RunConfig:
+    """`executor-track` over the humanoid's body shapes (issue 55 item 1): its task with
+    `vary_shape` on (`common.tasks.executor.presets`, variant "shape"), its learner unchanged.
+    The shapes come from the sampler's buffer as the other executor presets draw them: uniform
+    over the box (k = 0), 100 shapes refilled every 1,000 iterations."""
+    return dataclasses.replace(_track_preset(), name="executor-shape", task=executor_task("shape"))
+
+
 def _add_executor_presets() -> None:
+    builders = {"track": _track_preset, "shape": _shape_executor_preset}
     for variant, vtext in EXECUTOR_VARIANTS.items():
-        cfg = _track_preset() if variant == "track" else _executor_preset(variant)
+        cfg = builders[variant]() if variant in builders else _executor_preset(variant)
         PRESETS[cfg.name] = (f"UniCon motion executor on the DeepMimic humanoid over its clip library; {vtext}", cfg)
 
 

@@ -14,6 +14,7 @@ slerp; a looping clip continues with its root displaced by one cycle's displacem
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import mujoco
@@ -76,7 +77,6 @@ class CharacterMotion:
         self.clip = clip
         self.model = model
         self.frames = model_clip(clip, model, qpos_frames, fps)
-        self.data = mujoco.MjData(model)
         self.end_effector_bodies = tuple(end_effector_bodies)
         self._ee_ids = np.array([model.body(b).id for b in end_effector_bodies], dtype=np.int64)
         self._root_body = int(model.jnt_bodyid[0])
@@ -86,6 +86,12 @@ class CharacterMotion:
         """Play the clip as it is (no retargeting) on `model`."""
         qpos = QposMap(clip, model).to_qpos(clip.root_pos, clip.root_quat, clip.joint_qpos)
         return cls(clip, model, qpos, end_effector_bodies)
+
+    @functools.cached_property
+    def data(self) -> mujoco.MjData:
+        """The MjData of the motion's own kinematics (`positions`), made on first use: about 0.5 MB
+        on the humanoid, which a library of clips that only samples qpos never needs."""
+        return mujoco.MjData(self.model)
 
     @property
     def duration_s(self) -> float:

@@ -57,9 +57,16 @@ def contact_phases(clip: Clip, base_model: mujoco.MjModel, foot_geoms: tuple[str
     sunken frames); contact = near that floor and slow (see RetargetConfig).
     """
     qpos = QposMap(clip, base_model).to_qpos(clip.root_pos, clip.root_quat, clip.joint_qpos)
+    return frame_contact_phases(qpos, clip.fps, base_model, foot_geoms, cfg)
+
+
+def frame_contact_phases(qpos: np.ndarray, fps: float, base_model: mujoco.MjModel, foot_geoms: tuple[str, ...],
+                         cfg: RetargetConfig = RetargetConfig()) -> ContactPhases:
+    """`contact_phases` of qpos frames `[T, nq]` of the base character at `fps` (a clip already
+    played on it, e.g. one cleaned by `common.motion.clean`)."""
     h, pos = foot_heights(base_model, qpos, foot_geoms)
     ground = float(np.percentile(h.min(axis=1), 10))
-    speed = np.linalg.norm(np.gradient(pos[:, :, :2], axis=0), axis=-1) * clip.fps
+    speed = np.linalg.norm(np.gradient(pos[:, :, :2], axis=0), axis=-1) * fps
     flags = (h - ground < cfg.contact_height_m) & (speed < cfg.contact_speed_m_s)
     return ContactPhases(tuple(foot_geoms), flags, ground)
 
@@ -68,17 +75,26 @@ def retarget_qpos(clip: Clip, model: mujoco.MjModel, foot_geoms: tuple[str, ...]
                   contacts: ContactPhases, cfg: RetargetConfig = RetargetConfig()) -> np.ndarray:
     """qpos frames (T, nq) of `clip` on a shaped `model` with feet on the floor (module docstring)."""
     qpos = QposMap(clip, model).to_qpos(clip.root_pos, clip.root_quat, clip.joint_qpos)
+    return retarget_frames(qpos, clip.fps, clip.loop, model, foot_geoms, leg_ratio, contacts, cfg)
+
+
+def retarget_frames(qpos: np.ndarray, fps: float, loop: bool, model: mujoco.MjModel, foot_geoms: tuple[str, ...],
+                    leg_ratio: float, contacts: ContactPhases, cfg: RetargetConfig = RetargetConfig()) -> np.ndarray:
+    """`retarget_qpos` of qpos frames `[T, nq]` (at `fps`; `loop`: the clip loops) that already
+    carry the clip's joint angles in `model`'s layout (a clip played on the base character: a
+    shape moves no joint's rest orientation, so its joint angles are the same qpos on every
+    shape); changed in place and returned. `contacts` are those of the same frames on the base."""
     xy0 = qpos[0, :2].copy()
     qpos[:, :2] = xy0 + leg_ratio * (qpos[:, :2] - xy0)
     qpos[:, 2] = leg_ratio * (qpos[:, 2] - contacts.ground_m)
     h, _ = foot_heights(model, qpos, foot_geoms)
-    dz = root_offsets(h, contacts.flags, cfg.root_height, clip.loop, max_step=cfg.root_speed_m_s / clip.fps)
+    dz = root_offsets(h, contacts.flags, cfg.root_height, loop, max_step=cfg.root_speed_m_s / fps)
     qpos[:, 2] += dz
     h = h + dz[:, None]
     data = mujoco.MjData(model)
     legs = [Leg.of(model, int(model.geom(f).bodyid[0]), qpos) for f in foot_geoms]
     geoms = [foot_geom_ids(model, f) for f in foot_geoms]
-    goal = foot_goals(h, contacts.flags, cfg.root_height, clip.loop)
+    goal = foot_goals(h, contacts.flags, cfg.root_height, loop)
     for k, i in zip(*np.nonzero(goal - h > cfg.ik_tolerance_m)):
         data.qpos[:] = qpos[k]
         depth = goal[k, i] - h[k, i]
@@ -103,7 +119,7 @@ def retarget_qpos(clip: Clip, model: mujoco.MjModel, foot_geoms: tuple[str, ...]
                 depth = goal[k, i] - lowest_z(model, data, geoms[i])
         qpos[k] = data.qpos
     if cfg.body_clearance_m > 0:
-        qpos[:, 2] += clearance_lift(model, qpos, foot_geoms, cfg.body_clearance_m, cfg.ramp_s * clip.fps, clip.loop,
+        qpos[:, 2] += clearance_lift(model, qpos, foot_geoms, cfg.body_clearance_m, cfg.ramp_s * fps, loop,
                                      cfg.clearance_shins_may_touch)
     return qpos
 
@@ -165,6 +181,12 @@ def swim_path_scaled(clip: Clip, ratio: float) -> Clip:
     return dataclasses.replace(clip, root_pos=clip.root_pos[0] + ratio * (clip.root_pos - clip.root_pos[0]))
 
 
+def leg_length_ratio(character, base_character) -> float:
+    """r = mean leg length of `character` / that of `base_character` (`Character.leg_lengths_m`):
+    what root height and stride are scaled by (module docstring, 1)."""
+    return float(np.mean(character.leg_lengths_m) / np.mean(base_character.leg_lengths_m))
+
+
 def play_on(clip: Clip, character, base_character=None, cfg: RetargetConfig = RetargetConfig(),
             contacts: ContactPhases | None = None) -> CharacterMotion:
     """The clip retargeted onto `character` (a shaped `common.characters.Character`).
@@ -184,6 +206,5 @@ def play_on(clip: Clip, character, base_character=None, cfg: RetargetConfig = Re
                                          character.model, ees)
     if contacts is None:
         contacts = contact_phases(clip, base_character.model, feet, cfg)
-    ratio = float(np.mean(character.leg_lengths_m) / np.mean(base_character.leg_lengths_m))
-    qpos = retarget_qpos(clip, character.model, feet, ratio, contacts, cfg)
+    qpos = retarget_qpos(clip, character.model, feet, leg_length_ratio(character, base_character), contacts, cfg)
     return CharacterMotion(clip, character.model, qpos, ees)

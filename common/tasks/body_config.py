@@ -1,7 +1,8 @@
 """`BodyConfig`: the body a task simulates and how its shape varies (Won & Lee 2019, METHOD.md A).
 
-Shared by the shape tasks (`imitate`) and the executor, which pins the humanoid to its base
-shape today and is built to draw shapes beside clips later: `--task.body.shape-box-scale 0.5`.
+Shared by the shape tasks (`imitate`) and the executor, whose humanoid stays at its base shape
+unless `--task.body.vary-shape` (the `executor-shape` preset) draws a body beside each clip;
+`common.tasks.shape_params` turns it into the episode parameters of either.
 """
 
 from __future__ import annotations

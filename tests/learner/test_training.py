@@ -170,7 +170,8 @@ def test_bad_config_gets_a_clear_error(tmp_path):
 
 def test_bad_executor_options_exit_2_naming_the_value_and_make_no_run_folder(tmp_path):
     for args, says in [(("--task.executor.clips", "nope"), "clips ['nope'] do not play on the humanoid"),
-                       (("--task.body.vary-shape",), "trains on the base humanoid"),
+                       (("--task.executor.reference-cache", "0"),
+                        "reference-cache = 0 is not allowed: give an integer in [1, 65536]"),
                        (("--task.executor.catch-up-steps", "-1"), "catch-up-steps = -1 is not allowed: give an integer >= 0")]:
         proc = _cli("--preset", "executor-tiny", "--mode", "serial", "--runs-dir", str(tmp_path), *args)
         out, _ = proc.communicate(timeout=120)

@@ -5,8 +5,11 @@ METHOD.md B) stepped as one batch (`common.tasks.batch.BatchEnv`); training buil
 Environment i is an `ExecutorEnv(cfg, seeds[i])` of its own: its generator (drawn in the same
 order: reset's draws, the scheduler's at reschedules), its `DatasetScheduler` and its MjData.
 The N share one compiled MjModel, the clip library and the clip manager (`ExecutorEnv(like=)`;
-training never changes the model per environment). A step is `env.step_envs`, the function
-`ExecutorEnv.step` runs as a batch of one:
+training never changes the model per environment), except with projectiles (a throw writes
+into the model) and with `--task.body.vary-shape`, where each environment simulates the body
+of its episode's shape (`bodies.ShapedBodies`, its own models) and the N share the clips
+retargeted onto bodies (`bodies.ShapedReferences`: each depends on the clip and the shape
+alone). A step is `env.step_envs`, the function `ExecutorEnv.step` runs as a batch of one:
 - actuation (torques, or PD targets from the next frames), the characters' body kinematics
   features, the five reward terms, termination and the observations are array operations over
   the N environments, each environment's arithmetic the same as alone, so its observations,

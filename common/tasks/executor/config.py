@@ -173,7 +173,21 @@ class ExecutorConfig:
     """Playback speed of the target frames (robustness: 0.4 .. 1.6)."""
     projectile: bool = False
     """Add a projectile body to the scene (robustness); parked out of the way until thrown."""
-
+    reward_normalization: bool = True
+    """With `--task.body.vary-shape`: Won & Lee's reward normalization across body sizes
+    (METHOD.md A) on the two position terms, their squared errors divided by (lbar / lbar0)^2,
+    the body's mean leg length over the base humanoid's (`rewards.size_normalized_errors`, a
+    reconstruction); the base shape's factor is 1. Off: a metre counts the same on every body.
+    Without vary-shape nothing is normalized."""
+    shape_cache: int = 4
+    """With `--task.body.vary-shape`: bodies (the shaped humanoid and its simulated model, about
+    2.3 MB each) each environment keeps (LRU, `bodies.ShapedBodies`): a shape met again (the
+    sampler's buffer repeats its shapes) skips the build, 5-7 ms."""
+    reference_cache: int = 32
+    """With `--task.body.vary-shape`: clips retargeted onto a body kept per (clip, shape) (LRU,
+    `bodies.ShapedReferences`, shared by the environments of an actor's batch): a hit skips the
+    retargeting, 12 ms for the 1.3 s DeepMimic walk, 25-32 ms for a 5 s take (measured on two
+    busy cores). An entry holds the clip's frames and the body's model, about 1.5 MB for a 5 s take."""
 
     FLAG_PREFIX: ClassVar[str] = "task.executor"
     LIMITS: ClassVar[dict[str, Limit]] = {
@@ -185,6 +199,7 @@ class ExecutorConfig:
         "speed": between(0.05, 10), "ankle_armature": between(0, 10), "arm_armature": between(0, 10),
         "target_velocity_window": between(1, 30, integer=True), "reference_filter_hz": between(0, 30),
         "action_rate_weight": between(0, 10), "preview": between(1, 60, integer=True),
+        "shape_cache": between(1, 4096, integer=True), "reference_cache": between(1, 65536, integer=True),
     }
     """Allowed values of the numeric fields (`common.config_limits`)."""
 

@@ -22,9 +22,11 @@ DeepMimic humanoid, over a whole clip library.
   until every watched term is back above alpha; evaluation applies it from the start.
 - 60 Hz control with 4 substeps (240 Hz physics), as UniCon (`executor` preset).
 
-The humanoid's shape parameters are the episode parameters (collapsed to the base shape while
-the executor trains on one body, so the observation layout already has them): Won & Lee's
-shape variation joins by widening that box.
+The humanoid's shape parameters are the episode parameters, first in the observation. They are
+pinned to the base shape unless `--task.body.vary-shape` widens them to the parameterization's
+box (Won & Lee 2019, METHOD.md A): each reset then builds the body of the episode's shape and
+retargets its clips onto it (`bodies.py`: both cached), and the two position terms of the reward
+are normalized by the body's size (`rewards.size_normalized_errors`).
 
 Robustness hooks (zero-shot tests, UniCon 8.5): `scale_mass` makes the body heavier or lighter,
 `throw_projectile` throws the next of the optional projectile balls (`ExecutorConfig.projectile`) at it.
@@ -41,7 +43,7 @@ from typing import Sequence
 import mujoco
 import numpy as np
 
-from common.characters import base_character, load_character
+from common.characters import Character, CharacterFactory, load_character
 from common.characters.mass import scale_body_mass
 from common.characters.morph import lift_out_of_floor
 from common.characters.presets.humanoid import GAINS
@@ -52,13 +54,16 @@ from common.motion.library import MotionLibrary, clips_for
 from common.motion.manifest import Manifest, load_manifest, unicon_split, unicon_take_split
 from common.motion.mirror import MIRROR_SUFFIX, mirrored_id, source_id
 from common.motion.reference import CharacterMotion
+from common.motion.retarget import RetargetConfig
 from common.params import ParamSpace
 from common.tasks.base import _DIVERGENCE_WARNINGS, TaskConfig, diverged_step
 from common.tasks.content_bounds import OBS_MAX_ABS_LIMIT, ContentBounds
 from common.tasks.executor import rewards as rw
+from common.tasks.executor.bodies import ShapedBodies, ShapedBody, ShapedReferences
 from common.tasks.executor.observations import BodyKin, agent_features, kinematics_from_arrays, observation_of
 from common.tasks.executor.schedulers.base import DatasetScheduler, Scheduler, TargetFrame
 from common.tasks.observations import JointLayout
+from common.tasks.shape_params import shape_param_space
 
 CHARACTER = "humanoid"
 EFFORT_70KG_NM = {
@@ -271,19 +276,13 @@ class ExecutorEnv:
     _table: TargetTable | None = None
     _slot = 0
     _slots = np.zeros(1, np.intp)
+    leg_ratio = 1.0
 
     @staticmethod
     def param_space(cfg: TaskConfig) -> ParamSpace:
-        """The humanoid's shape parameters (`cfg.body.parameterization`), pinned to the base shape."""
-        shape = base_character(CHARACTER, 1.0 / cfg.sim_hz).base.spaces.get(cfg.body.parameterization)
-        if shape is None:
-            spaces = base_character(CHARACTER, 1.0 / cfg.sim_hz).base.spaces
-            raise ValueError(f"parameterization {cfg.body.parameterization!r} is not one of {sorted(spaces)}")
-        if cfg.body.vary_shape:
-            raise ValueError("the executor trains on the base humanoid for now: run it with --task.body.no-vary-shape "
-                             "(shape variation over clips is the next step, see README)")
-        d = tuple(float(x) for x in shape.default)
-        return ParamSpace(tuple(shape.names), d, d, d, tuple(p.doc for p in shape.params))
+        """The humanoid's shape parameters (`cfg.body.parameterization`): its box with
+        `cfg.body.vary_shape` (shrunk by `shape_box_scale`), else pinned to the base shape."""
+        return shape_param_space(CHARACTER, cfg.body, 1.0 / cfg.sim_hz)
 
     @staticmethod
     def clips(cfg: TaskConfig) -> list[tuple[str, str]]:
@@ -299,30 +298,33 @@ class ExecutorEnv:
                              obs_max_abs=OBS_MAX_ABS_LIMIT, episode_steps=cfg.episode_steps)
 
     def __init__(self, cfg: TaskConfig, seed: int = 0, like: ExecutorEnv | None = None):
-        """`like`: an environment of the same `cfg` whose compiled model (unless projectiles make
-        the model per environment), clip library and clip manager this one shares
-        (`ExecutorBatch`); it behaves as one built alone."""
+        """`like`: an environment of the same `cfg` whose compiled model (unless projectiles or
+        `vary_shape` make the models per environment), clip library, retargeted clips and clip
+        manager this one shares (`ExecutorBatch`); it behaves as one built alone."""
         self.cfg, self.ex = cfg, cfg.executor
         self.rng = np.random.default_rng(seed)
         self._segments: list[tuple[str, bool, float]] = []  # ended clip segments not yet drained
         self._segment_clip = ""
         self.space = self.param_space(cfg)
         self.dt = 1.0 / cfg.control_hz
-        ch = like.character if like is not None else load_character(CHARACTER, timestep_s=1.0 / cfg.sim_hz)
-        self.character = ch
-        self.ref_model = ch.model
-        self.ref_data = like.ref_data if like is not None else mujoco.MjData(self.ref_model)
-        self._target_kin_memo: dict[bytes, BodyKin] = {}
-        self.model = like.model if like is not None and not self.ex.projectile else self._compile(ch)
-        self.nq, self.nv, self.nu = self.ref_model.nq, self.ref_model.nv, self.ref_model.nu
-        self.base_mass = self.model.body_mass.copy()
-        self.base_inertia = self.model.body_inertia.copy()
-        self.mass_kg = float(ch.mass_kg)
         if self.ex.actuation not in ("torque", "pd"):
             raise ValueError(f"actuation {self.ex.actuation!r} is not one of torque, pd")
-        if self.ex.actuation == "torque":
-            self.efforts = effort_factors(self.model, self.mass_kg, self.ex.effort_scale)
-        self.pd_lead_s = pd_lead_s(self.model) if self.ex.actuation == "pd" and self.ex.pd_velocity_target else None
+        base = like.base_character if like is not None else load_character(CHARACTER, timestep_s=1.0 / cfg.sim_hz)
+        self.base_character = base
+        """The humanoid at its base shape (what clips are prepared on)."""
+        self.mass_factor = 1.0
+        """`scale_mass`'s factor, kept for every body the environment switches to."""
+        self.body: ShapedBody | None = None
+        """The episode's body with `vary_shape` (None: the base humanoid, always)."""
+        self._bodies = (ShapedBodies(CharacterFactory(CHARACTER, cfg.body.parameterization, timestep_s=1.0 / cfg.sim_hz),
+                                     base, self._compile, self.ex.shape_cache) if cfg.body.vary_shape else None)
+        if self._bodies is None:
+            model = like.model if like is not None and not self.ex.projectile else self._compile(base)
+            self._simulate(base, model, like.ref_data if like is not None else mujoco.MjData(base.model),
+                           model.body_mass.copy(), model.body_inertia.copy())
+        else:
+            self._use_body(self._bodies.get(self.space.default_array))
+        self.nq, self.nv, self.nu = self.ref_model.nq, self.ref_model.nv, self.ref_model.nu
         self.layout = JointLayout(self.ref_model)
         self.bodies = np.arange(1, self.ref_model.nbody)
         self.body_slice = slice(1, self.ref_model.nbody)
@@ -332,8 +334,13 @@ class ExecutorEnv:
             raise ValueError(f"no clips to track for split {self.ex.split!r} (seed {self.ex.split_seed})")
         self.library = like.library if like is not None else MotionLibrary()
         self._motions: dict[str, CharacterMotion] = like._motions if like is not None else {}
+        """Each clip as prepared on the base humanoid (`_source`)."""
+        self._references = (None if self._bodies is None else like._references if like is not None else
+                            ShapedReferences(self._source, base, RetargetConfig(), self.ex.reference_floor,
+                                             self.ex.reference_cache))
+        """With `vary_shape`: the clips retargeted onto bodies, by (clip, shape), shared by a batch."""
         self.clip_manager = (like.clip_manager if like is not None else
-                             ClipManager(self.clip_list, duration_s=lambda c: self._motion(c).duration_s))
+                             ClipManager(self.clip_list, duration_s=lambda c: self._source(c).duration_s))
         """Draws the clip and start of every schedule the environment begins itself (a reset without
         a clip, a reschedule), by the motion balancer's probabilities. NOTE: unweighted: the
         sampler's adaptive clip weights (`sampler/clip_outcomes.py`) shape the episode's first clip
@@ -375,19 +382,56 @@ class ExecutorEnv:
             passive_damping(model, self.ex.passive_damping)
         return model
 
-    def _motion(self, clip_id: str) -> CharacterMotion:
+    def _simulate(self, ch: Character, model: mujoco.MjModel, ref_data: mujoco.MjData, body_mass: np.ndarray,
+                  body_inertia: np.ndarray) -> None:
+        """Simulate character `ch` as `model` (its compiled masses and inertias `body_mass`,
+        `body_inertia`), its target frames' kinematics on `ch.model` with `ref_data`."""
+        self.character = ch
+        self.ref_model = ch.model
+        self.ref_data = ref_data
+        self._target_kin_memo: dict[bytes, BodyKin] = {}
+        self.model = model
+        self.base_mass, self.base_inertia = body_mass, body_inertia
+        self.mass_kg = float(ch.mass_kg)
+        if self.ex.actuation == "torque":
+            self.efforts = effort_factors(self.model, self.mass_kg, self.ex.effort_scale)
+        self.pd_lead_s = pd_lead_s(self.model) if self.ex.actuation == "pd" and self.ex.pd_velocity_target else None
+
+    def _use_body(self, body: ShapedBody) -> None:
+        """Switch to `body` (`vary_shape`): its models, a new MjData, `scale_mass`'s factor and the
+        reward's size normalization; nothing when it is the body in use."""
+        if body is self.body:
+            return
+        self.body = body
+        self._simulate(body.character, body.model, body.ref_data, body.body_mass, body.body_inertia)
+        self.data = mujoco.MjData(self.model)
+        if self.mass_factor != 1.0:
+            self.scale_mass(self.mass_factor)
+        self.leg_ratio = body.norm.leg_ratio if self.ex.reward_normalization else 1.0
+        """lbar / lbar0 of the body the position terms are normalized by (`rewards.size_normalized_errors`)."""
+
+    def _source(self, clip_id: str) -> CharacterMotion:
+        """The clip as prepared on the base humanoid (`_prepare`), once per clip."""
         if clip_id not in self._motions:
             # NOTE: played once through, never wrapped: the scheduler reschedules at the end
             # anyway, and most "looping" mocap does not close (humanoid3d_walk's shoulders turn
             # 0.5 rad across its seam), so a wrap put 14 rad/s spikes into the target velocities.
             clip = self.library.clip(clip_id).with_(loop=False)
-            self._motions[clip_id] = self._prepare(CharacterMotion.from_clip(clip, self.ref_model))
+            self._motions[clip_id] = self._prepare(CharacterMotion.from_clip(clip, self.base_character.model))
         return self._motions[clip_id]
+
+    def _motion(self, clip_id: str) -> CharacterMotion:
+        """The clip as the episode's body tracks it: the prepared clip (`_source`) on the base
+        humanoid; with `vary_shape`, retargeted onto the body (`ShapedReferences`)."""
+        if self._references is None:
+            return self._source(clip_id)
+        return self._references.get(clip_id, self.body)
 
     def _prepare(self, motion: CharacterMotion) -> CharacterMotion:
         """A clip as the executor tracks it, cleaned once (`ExecutorConfig.reference_filter_hz`,
-        `reference_floor`; `common.motion.clean.clean_motion`): the same motion when both are off."""
-        return clean_motion(motion, self.ex.reference_filter_hz, self.ex.reference_floor)
+        `reference_floor`; `common.motion.clean.clean_motion`): the same motion when both are off.
+        With `vary_shape` the floor is left to each body's retargeted clip (`ShapedReferences`)."""
+        return clean_motion(motion, self.ex.reference_filter_hz, self.ex.reference_floor and self._references is None)
 
     def register_clip(self, clip_id: str, clip) -> None:
         """Make a clip that is not in the task's set trackable by name (`reset(..., clip_id)`),
@@ -396,7 +440,10 @@ class ExecutorEnv:
         if clip.character and clip.character != CHARACTER:
             raise ClipError(f"clip is for the {clip.character!r} character, not {CHARACTER!r}; import it onto the "
                             "humanoid first (morphmimic motion import ... --character humanoid)", path=clip_id)
-        self._motions[clip_id] = self._prepare(CharacterMotion.from_clip(clip.with_(loop=False), self.ref_model))
+        motion = CharacterMotion.from_clip(clip.with_(loop=False), self.base_character.model)
+        self._motions[clip_id] = self._prepare(motion)
+        if self._references is not None:
+            self._references.forget(clip_id)
         if hasattr(self.scheduler, "extra_ids"):
             self.scheduler.extra_ids.add(clip_id)
 
@@ -535,6 +582,8 @@ class ExecutorEnv:
         if seed is not None:
             self.rng = np.random.default_rng(seed)
         self.params = self.space.validate(params).astype(np.float64)
+        if self._bodies is not None:
+            self._use_body(self._bodies.get(self.params))
         resumed = not self.begins_on_reset(restart)
         if resumed:
             on_frame = True
@@ -601,9 +650,11 @@ class ExecutorEnv:
 
     def scale_mass(self, factor: float) -> None:
         """Make every body of the character `factor` times heavier (masses and inertias, and what
-        MuJoCo derives from them: `common.characters.mass`)."""
+        MuJoCo derives from them: `common.characters.mass`); with `vary_shape`, every body a reset
+        switches to is as much heavier than compiled."""
         if not 0.05 <= factor <= 20.0:
             raise ValueError(f"mass factor {factor} must be in [0.05, 20]")
+        self.mass_factor = float(factor)
         n = self.ref_model.nbody
         scale_body_mass(self.model, self.base_mass[:n], self.base_inertia[:n], factor, slice(0, n))
 
@@ -762,11 +813,12 @@ def _mean_length(d: np.ndarray) -> np.ndarray:
 def tracking_errors(envs: Sequence[ExecutorEnv], q: np.ndarray, actual: BodyKin, target: Targets,
                     qpos_before: Sequence[np.ndarray] | None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Each environment's five reward terms' errors `[N, 5]` (UniCon eq. 5's kernels' arguments,
-    in `rewards.TERMS` order) and position errors in metres (`joint_error_m`, `body_error_m`,
-    `[N]` each), from the characters' qpos `q` `[N, nq]` (C-ordered) and `BodyKin` `[N]` and
-    the tracked frames' (`Targets`); `qpos_before` (each environment's joint angles a control
-    step ago, or None) makes the joint-velocity term compare the step's mean velocity
-    (`ExecutorConfig.joint_velocity = "step_mean"`)."""
+    in `rewards.TERMS` order; with `vary_shape` and `reward_normalization` the position terms'
+    divided by the body's size, `rewards.size_normalized_errors`) and position errors in metres
+    (`joint_error_m`, `body_error_m`, `[N]` each), from the characters' qpos `q` `[N, nq]`
+    (C-ordered) and `BodyKin` `[N]` and the tracked frames' (`Targets`); `qpos_before` (each
+    environment's joint angles a control step ago, or None) makes the joint-velocity term
+    compare the step's mean velocity (`ExecutorConfig.joint_velocity = "step_mean"`)."""
     first = envs[0]
     qr, qvel_ref = target.qpos, target.qvel
     qvel = np.stack([env.views(env.data, STEP_ARRAYS)[3][: env.nv] for env in envs])  # a copy: step_mean overwrites rows
@@ -780,6 +832,8 @@ def tracking_errors(envs: Sequence[ExecutorEnv], q: np.ndarray, actual: BodyKin,
     errors[:, 2] = rw.joint_position_errors(rel, rel_ref)
     errors[:, 3] = rw.joint_rotation_errors(q[:, lay.ball_qpos], qr[:, lay.ball_qpos], q[:, lay.hinge_qpos], qr[:, lay.hinge_qpos])
     errors[:, 4] = rw.joint_velocity_errors(qvel[:, 6:], qvel_ref[:, 6:])
+    if first.body is not None and first.ex.reward_normalization:  # vary_shape: position terms by body size
+        errors = rw.size_normalized_errors(errors, np.array([env.leg_ratio for env in envs]))
     positions = {"joint_error_m": _mean_length(rel - rel_ref), "body_error_m": _mean_length(actual.pos - target.pos)}
     return errors, positions
 

@@ -6,6 +6,10 @@ it: agent-centric observation with tau = 1, the five-term reward, per-term termi
 reactive state initialization, 60 Hz control with 4 substeps (240 Hz physics), the motion
 balancer's clip draws, 20 s episodes.
 
+The "shape" variant is "track" with `vary_shape` on (issue 55 item 1): every episode draws a body
+from Won & Lee's height x thickness box (METHOD.md A), the clip is retargeted onto it and the
+position terms are normalized by its size (`bodies.py`, `rewards.size_normalized_errors`).
+
 The "pd" variant (the one trained and shipped) differs from UniCon where measurements said so
 (docs/executor.md has each comparison): PD targets instead of torques; the PD damps toward the
 next frame's joint velocity (`pd_velocity_target`); ankles, shoulders and elbows carry a rotor
@@ -25,6 +29,7 @@ VARIANTS: dict[str, str] = {
     "": "torque, per-term termination, balancer, reactive initialization",
     "pd": "ablation: PD targets instead of torques",
     "track": "PD targets, trained on the rule it is evaluated by, over the whole library (issue 52's recipe)",
+    "shape": "the track recipe over the humanoid's shapes (height x thickness), each clip retargeted onto each body",
     "noterm": "ablation: sum rule, no per-term termination",
     "uniform": "ablation: uniform clip draws, no balancer",
     "norsis": "ablation: no reactive initialization",
@@ -36,9 +41,10 @@ def executor_task(variant: str = "") -> TaskConfig:
     """The executor's task configuration in `variant` (a key of `VARIANTS`)."""
     if variant not in VARIANTS:
         raise ValueError(f"executor variant {variant!r} is not one of {sorted(VARIANTS)}")
-    if variant == "track":
+    if variant in ("track", "shape"):
         return TaskConfig(name="executor", control_hz=60.0, sim_hz=240.0, episode_s=20.0,
-                          body=BodyConfig(parameterization="height_thickness", vary_shape=False), executor=track_config())
+                          body=BodyConfig(parameterization="height_thickness", vary_shape=variant == "shape"),
+                          executor=track_config())
     ex = ExecutorConfig(
         actuation="pd" if variant == "pd" else "torque",
         pd_velocity_target=variant == "pd",

@@ -126,6 +126,32 @@ def joint_velocity_error(qvel_joints: np.ndarray, qvel_joints_ref: np.ndarray) -
     return float(joint_velocity_errors(qvel_joints, qvel_joints_ref))
 
 
+POSITION_TERMS = ("root_position", "joint_position")
+"""The terms whose errors are lengths (m^2): what the size normalization divides."""
+
+
+def size_normalized_errors(errors: np.ndarray, leg_ratio: np.ndarray) -> np.ndarray:
+    """The five terms' errors `[N, 5]` (`TERMS` order) with those of `POSITION_TERMS` divided by
+    (lbar / lbar0)^2, `leg_ratio` `[N]` each body's mean leg length over the base humanoid's:
+    Won & Lee 2019's reward normalization across body sizes (section 4.3, Table 1; METHOD.md A,
+    "Reward normalization") carried over to the executor's position terms.
+
+    Reconstruction: Won & Lee scale what a reward compares by the body's size, the target
+    velocity by lbar / lbar0 (their Table 1, row "Velocity", with the asymmetry factor
+    max(0.5, 1 - sigma_l / lbar)); the executor's retargeted references are scaled by the same
+    ratio (root height and stride, `common.motion.retarget`), so a squared position error
+    divided by its square scores an error of the same fraction of the body alike on a short and
+    a tall body. The asymmetry factor is left out: it eases a task for an uneven body, it does
+    not measure its size. Rotations and angular velocities are unchanged. A ratio of exactly 1
+    (the base shape) leaves every error as it is, bit for bit. `ExecutorConfig.reward_normalization`
+    turns it off."""
+    out = np.array(errors, dtype=np.float64)
+    ratio = np.asarray(leg_ratio, dtype=np.float64)
+    cols = _indices(POSITION_TERMS)
+    out[:, cols] = out[:, cols] / (ratio * ratio)[:, None]
+    return out
+
+
 def term_values(errors: np.ndarray, scales: tuple[float, ...]) -> np.ndarray:
     """exp(-k err) `[..., 5]` of the five terms' errors `[..., 5]` (in `TERMS` order)."""
     return np.exp(-np.asarray(scales, dtype=np.float64) * errors)

@@ -33,6 +33,7 @@ import numpy as np
 from common.characters import CharacterFactory, base_character, morph
 from common.characters.morph import lift_out_of_floor
 from common.characters.operator import gains_follow_torque_limits
+from common.lru import Lru
 from common.params import ParamSpace
 from common.tasks.base import TaskConfig, diverged_step, step_physics
 from common.tasks.content_bounds import OBS_MAX_ABS_LIMIT, ContentBounds
@@ -40,6 +41,7 @@ from common.tasks.observations import JointLayout, heading, quat_to_mat, root_fr
 from common.tasks.shape import references, rewards
 from common.tasks.shape.stroke_model import StrokeModel
 from common.tasks.shape.stroke_speed import SWIMMERS
+from common.tasks.shape_params import shape_param_space
 
 LOOKAHEAD_S = (0.0, 0.5, 1.0)
 """Reference postures in the state: now, 0.5 s and 1.0 s ahead (METHOD.md A)."""
@@ -68,16 +70,8 @@ class ImitateEnv:
     def param_space(cfg: TaskConfig) -> ParamSpace:
         """Shape parameters of `cfg.body.parameterization` (collapsed to the base shape when
         `cfg.body.vary_shape` is off), then the task parameters of `cfg.imitate.task_params`."""
-        shape = base_character(character_preset(cfg), 1.0 / cfg.sim_hz).base.spaces.get(cfg.body.parameterization)
-        if shape is None:
-            spaces = base_character(character_preset(cfg), 1.0 / cfg.sim_hz).base.spaces
-            raise ValueError(f"parameterization {cfg.body.parameterization!r} is not one of {sorted(spaces)}")
-        names, low, high, doc = list(shape.names), list(shape.low), list(shape.high), [p.doc for p in shape.params]
-        if not cfg.body.vary_shape:
-            low, high = list(shape.default), list(shape.default)
-        elif cfg.body.shape_box_scale != 1.0:
-            d, k = np.asarray(shape.default), cfg.body.shape_box_scale
-            low, high = list(d + k * (np.asarray(low) - d)), list(d + k * (np.asarray(high) - d))
+        shape = shape_param_space(character_preset(cfg), cfg.body, 1.0 / cfg.sim_hz)
+        names, low, high, doc = list(shape.names), list(shape.low), list(shape.high), list(shape.doc)
         ranges = {"speed": cfg.imitate.speed_range, "heading": cfg.imitate.heading_range_rad}
         for name in cfg.imitate.task_params:
             if name not in TASK_PARAMS:
@@ -132,7 +126,7 @@ class ImitateEnv:
         self._base_legs = self._legs(self.base)
         self.stroke_model = self.check(cfg)
         """The swimmer's fitted stroke-speed model under `swimmer_speed = "stroke_fit"`, else None."""
-        self._cache: collections.OrderedDict[bytes, tuple] = collections.OrderedDict()
+        self._cache: Lru[tuple] = Lru(max(1, cfg.imitate.character_cache))
         self._factory = CharacterFactory(self.preset, cfg.body.parameterization, timestep_s=self.timestep_s)
         self.dt = 1.0 / cfg.control_hz
         self._look = [int(round(x * cfg.control_hz)) for x in LOOKAHEAD_S]
@@ -155,18 +149,14 @@ class ImitateEnv:
     def _load(self, params: np.ndarray) -> None:
         """Build (or fetch from the per-env cache) the character and reference for a shape."""
         shape = np.asarray(params[: self.n_shape], dtype=np.float64)
-        key = shape.tobytes()
-        if key in self._cache:
-            self._cache.move_to_end(key)
-        else:
+
+        def build() -> tuple:
             ch = self._factory.make(shape)
             self._gains(ch)
             motion = references.play(ch, self.clip_id, self.timestep_s, self.retarget)
-            norm = self._normalization(ch, shape)
-            self._cache[key] = (ch, motion, norm)
-            while len(self._cache) > max(1, self.cfg.imitate.character_cache):
-                self._cache.popitem(last=False)
-        self._set_character(*self._cache[key])
+            return ch, motion, self._normalization(ch, shape)
+
+        self._set_character(*self._cache.get(shape.tobytes(), build))
 
     def _gains(self, ch) -> None:
         if self.cfg.imitate.pd_gains_follow_torque:
