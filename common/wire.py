@@ -51,6 +51,7 @@ MAX_MESSAGE_BYTES = 256 * 1024 * 1024
 ALLOWED_DTYPES = frozenset({"<f4", "<f8", "<i4", "<i8", "|u1", "|b1", "<f2", "<u4"})
 F32 = frozenset({"<f4"})
 BOOL = frozenset({"|b1"})
+I32 = frozenset({"<i4"})
 
 MAX_INT = 2**53
 """Default bound of every int field: exact as a float64, so counters and logs stay exact."""
@@ -133,7 +134,7 @@ class UnrollMsg:
     """
 
     KIND: ClassVar[str] = "unroll"
-    VERSION: ClassVar[int] = 3
+    VERSION: ClassVar[int] = 4
     actor_id: int = field(metadata=rule(ge=0, le=MAX_ACTOR_ID))
     seq: int = field(metadata=rule(ge=0))
     """Per-actor sequence number, +1 per unroll; gaps mean lost unrolls."""
@@ -163,6 +164,13 @@ class UnrollMsg:
     segment_times: list[float] = field(default_factory=list, metadata=rule(ge=0, le=MAX_CLIP_S, length="segments", empty_ok=True))
     """Clip time (s) at which each segment ended: where an untracked one failed (the sampler's
     time bins), its clip's length for a tracked one; empty from a sender that does not tell."""
+    clip_names: list[str] = field(default_factory=list, metadata=rule(max_len=MAX_KEY, max_items=4096))
+    """The clips `step_clips` indexes (tasks that track clips); empty: none."""
+    step_clips: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.int32), metadata=rule(dtypes=I32))
+    """`[T, N]` int32: the clip each step's episode was drawn with, an index into `clip_names`,
+    -1 for none; or empty (`[0, 0]`): the sender does not tell. The learner sends it with the value
+    pairs to a sampler that fits Vm over (shape, class); `learner.unroll_bounds` checks the
+    shape and the indices."""
 
 
 @dataclass(frozen=True)
@@ -232,7 +240,7 @@ class ValueReportMsg:
     """`(parameters, V(s))` pairs for the marginal value fit (Won & Lee 2019, Alg. 1)."""
 
     KIND: ClassVar[str] = "value_report"
-    VERSION: ClassVar[int] = 4
+    VERSION: ClassVar[int] = 5
     params: np.ndarray = field(metadata=rule(shape=("m", "n_params"), dtypes=F32))
     values: np.ndarray = field(metadata=rule(shape=("m",), dtypes=F32))
     report_id: str = field(default="", metadata=rule(max_len=128))
@@ -250,6 +258,10 @@ class ValueReportMsg:
     fail_times_s: list[float] = field(default_factory=list, metadata=rule(
         ge=0, le=MAX_CLIP_S, length="f", empty_ok=True, max_items=MAX_FAILURE_TIMES))
     """The clip time (s) each failed there (the sampler checks each is inside its clip)."""
+    pair_clip_ids: list[str] = field(default_factory=list, metadata=rule(length="m", empty_ok=True, max_len=MAX_KEY))
+    """The clip of each pair's episode, one per params row (a sampler with `shape_by_class` fits
+    Vm over (shape, class) and refuses a report without them or with a clip it does not draw;
+    one without refuses any); empty: none."""
 
 
 @dataclass(frozen=True)

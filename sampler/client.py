@@ -58,11 +58,13 @@ class SamplerClient:
 
     def report(self, params: np.ndarray, values: np.ndarray,
                clips: tuple[Sequence[str], Sequence[int], Sequence[int]] = ((), (), ()),
-               failures: tuple[Sequence[str], Sequence[float]] = ((), ()), report_id: str | None = None) -> str:
+               failures: tuple[Sequence[str], Sequence[float]] = ((), ()), report_id: str | None = None,
+               pair_clips: Sequence[str] = ()) -> str:
         """Send (s_b `[m, d]`, V(s) `[m]`) pairs for the marginal value fit, `clips`: the
         training segments per clip since the last report, (ids, segments, tracked), for adaptive
         clip sampling, and `failures`: (clip ids, clip times in s) of the failed segments, for
-        the time bins (at most `wire.MAX_FAILURE_TIMES`). Returns the service's note (pairs
+        the time bins (at most `wire.MAX_FAILURE_TIMES`), and `pair_clips`: the clip of each
+        pair's episode (only to a sampler with `shape_by_class`). Returns the service's note (pairs
         stored; failure times refused and why).
 
         Idempotent: the report carries an id unique to this call (this client's random nonce
@@ -74,7 +76,8 @@ class SamplerClient:
                                   report_id=report_id or self.new_report_id(),
                                   clip_ids=[str(c) for c in clips[0]], clip_segments=[int(n) for n in clips[1]],
                                   clip_tracked=[int(t) for t in clips[2]],
-                                  fail_clip_ids=[str(c) for c in failures[0]], fail_times_s=[float(t) for t in failures[1]])
+                                  fail_clip_ids=[str(c) for c in failures[0]], fail_times_s=[float(t) for t in failures[1]],
+                                  pair_clip_ids=[str(c) for c in pair_clips])
         return self.rpc.call(msg, wire.OkMsg).info
 
     def tick(self, iteration: int) -> dict[str, float]:

@@ -36,10 +36,11 @@ WORST_CLIPS = 8
 """Clips of lowest success named at each tick when there are more than `PER_CLIP_MAX`."""
 
 
-def clip_class(label: str) -> str:
-    """The class of a clip label: its first `CLASS_DEPTH` levels below the root."""
+def clip_class(label: str, depth: int = CLASS_DEPTH) -> str:
+    """The class of a clip label: its first `depth` levels below the root (a shorter label is
+    its own class)."""
     parts = [p for p in label.strip("/").split("/") if p]
-    return "/".join(parts[: CLASS_DEPTH + 1])
+    return "/".join(parts[: depth + 1])
 
 
 class ClipMetrics:

@@ -60,6 +60,16 @@ class SamplerConfig:
     time_uniform: float = 0.1
     """Share of a clip's starts drawn uniformly over its time whatever the failures (mjlab: 0.1),
     so no stretch of a clip is forgotten."""
+    shape_by_class: bool = False
+    """Shape and motion class drawn together (issue 55 item 2): Vm is fitted over (shape, class),
+    the class a clip's label cut to `class_depth` levels below the root, and each class keeps its
+    own buffer of `n_mcmc` shapes drawn from exp(-k Vm(s, c) / Vbar_c). The balancer still picks
+    each episode's clip (every class stays in play); its shape comes from its class's buffer.
+    Needs a task with clips and value reports that name each pair's clip. Off: one buffer, Vm
+    over shapes alone."""
+    class_depth: int = 2
+    """Label levels below the root that make a class of `shape_by_class` (2: `root/bandai/walk`,
+    the level of the per-class clip metrics; 1: `root/bandai`)."""
     vbar_floor: float = 1e-3
     """Smallest |Vbar| used as the density's temperature: guards the division early in training."""
     vm_hidden: tuple[int, ...] = (64, 64)
@@ -102,7 +112,7 @@ class SamplerConfig:
     LIMITS: ClassVar[dict[str, Limit]] = {
         "k": at_least(0, False), "clip_k": between(0, 50), "clip_memory": between(0, 1, hi_open=True),
         "clip_floor": between(0, 1, lo_open=True), "time_bin_s": between(0, 10), "time_kernel": between(0, 20, integer=True),
-        "time_lambda": between(0, 1), "time_uniform": between(0, 1, lo_open=True), "p_mcmc": at_least(1), "n_mcmc": at_least(1), "n_chains": at_least(1), "burn_in": at_least(0),
+        "time_lambda": between(0, 1), "class_depth": between(1, 16, integer=True), "time_uniform": between(0, 1, lo_open=True), "p_mcmc": at_least(1), "n_mcmc": at_least(1), "n_chains": at_least(1), "burn_in": at_least(0),
         "thin": at_least(1), "vbar_floor": above(0), "vm_hidden": at_least(1), "vm_lr": above(0),
         "vbar_rate": between(0, 1, lo_open=True), "vm_fit_steps": at_least(0), "vm_minibatch": at_least(1),
         "max_pending_pairs": at_least(1), "max_draw": at_least(1), "probe_points": at_least(1), "seed": at_least(0),

@@ -4,11 +4,20 @@ The learner writes it into the run directory from the sampler's state (`SamplerC
 so it works wherever the sampler actor runs:
 
     plot_state(client.get_state(), space, run_dir / "sampler_vm.png", params=("leg", "arm"))
+
+A sampler over (shape, class) (`--sampler.shape-by-class`) gets the class map instead: one panel
+per motion class, Vm(., c) over the two parameters with the others at their base values, that
+class's buffer on top, one colour scale for all panels so the hard (shape, class) pairs stand out
+(`plot_class_map`). From a saved sampler state, without the run:
+
+    python -m sampler.plot <run>/sampler vm_classes.png --params height thickness
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+import argparse
+import math
 from typing import Any, Sequence
 
 import matplotlib
@@ -51,16 +60,31 @@ def plot_marginal_value(vm: MarginalValue, space: ParamSpace, buffer: np.ndarray
         return _plot_1d(vm, space, buffer, Path(path), resolution, title)
     i, j = map_axes(space, params)
     fixed = buffer.mean(axis=0) if buffer is not None and len(buffer) else space.default_array
+    mesh_i, mesh_j, values = _grid_values(lambda g: vm(g), space, i, j, fixed, resolution)
+
+    fig, ax = plt.subplots(figsize=(5.5, 4.5), dpi=120)
+    mesh = _panel(ax, space, i, j, mesh_i, mesh_j, values, buffer)
+    fig.colorbar(mesh, ax=ax, label="Vm (expected return)")
+    ax.set_title(title or "marginal value Vm and MCMC buffer", fontsize=9)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _grid_values(fn, space: ParamSpace, i: int, j: int, fixed: np.ndarray,
+                 resolution: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Meshes of parameters i and j over the box and `fn` on them, the other parameters at `fixed`."""
     gi = np.linspace(space.low[i], space.high[i], resolution)
     gj = np.linspace(space.low[j], space.high[j], resolution)
     mesh_i, mesh_j = np.meshgrid(gi, gj)
     grid = np.tile(fixed, (mesh_i.size, 1))
     grid[:, i], grid[:, j] = mesh_i.ravel(), mesh_j.ravel()
-    values = vm(grid).reshape(mesh_i.shape)
+    return mesh_i, mesh_j, np.asarray(fn(grid)).reshape(mesh_i.shape)
 
-    fig, ax = plt.subplots(figsize=(5.5, 4.5), dpi=120)
-    mesh = ax.pcolormesh(mesh_i, mesh_j, values, shading="auto", cmap="viridis")
-    fig.colorbar(mesh, ax=ax, label="Vm (expected return)")
+
+def _panel(ax, space: ParamSpace, i: int, j: int, mesh_i: np.ndarray, mesh_j: np.ndarray, values: np.ndarray,
+           buffer: np.ndarray | None, vmin: float | None = None, vmax: float | None = None):
+    """One Vm map on `ax` with the buffer's points on top; returns the mesh (for a colour bar)."""
+    mesh = ax.pcolormesh(mesh_i, mesh_j, values, shading="auto", cmap="viridis", vmin=vmin, vmax=vmax)
     if buffer is not None and len(buffer):
         ax.scatter(buffer[:, i], buffer[:, j], s=4, c="white", edgecolors="black", linewidths=0.2,
                    alpha=0.7, label=f"buffer ({len(buffer)})")
@@ -69,13 +93,61 @@ def plot_marginal_value(vm: MarginalValue, space: ParamSpace, buffer: np.ndarray
     ax.set_ylabel(space.names[j])
     ax.set_xlim(space.low[i], space.high[i])
     ax.set_ylim(space.low[j], space.high[j])
-    ax.set_title(title or "marginal value Vm and MCMC buffer", fontsize=9)
-    fig.tight_layout()
+    return mesh
+
+
+def _save(fig, path: str | Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)
     plt.close(fig)
     return path
+
+
+def plot_class_map(vm: MarginalValue, space: ParamSpace, buffers: Sequence[np.ndarray | None], path: str | Path,
+                   params: Sequence[str] | None = None, resolution: int = 48, title: str = "",
+                   vbar: Sequence[float] | None = None) -> Path | None:
+    """Write a PNG of Vm(., c) over `params` (two names; default the first two) for each class
+    of `vm` (a Vm over classes), one panel per class, the other parameters at the space's base
+    values (`default`), that class's buffer (`buffers[c]`, `[n, d]` or None) on top and one colour
+    scale for every panel; `vbar`: each class's Vbar_c, shown in its title. A 1-D space gets one
+    curve per class. None (nothing written) when an axis has no width."""
+    if not vm.n_classes:
+        raise ValueError("plot_class_map needs a Vm over classes (--sampler.shape-by-class)")
+    if not has_map(space, params):
+        return None
+    names = vm.classes
+    if space.dim == 1:
+        grid = np.linspace(space.low[0], space.high[0], resolution)[:, None]
+        fig, ax = plt.subplots(figsize=(6.5, 4.0), dpi=120)
+        for c, name in enumerate(names):
+            ax.plot(grid[:, 0], vm(grid, c), label=name)
+        ax.set_xlabel(space.names[0])
+        ax.set_ylabel("Vm (expected return)")
+        ax.legend(fontsize=6, ncol=2)
+        ax.set_title(title or "marginal value Vm per class", fontsize=9)
+        fig.tight_layout()
+        return _save(fig, path)
+    i, j = map_axes(space, params)
+    maps = [_grid_values(lambda g, c=c: vm(g, c), space, i, j, space.default_array, resolution) for c in range(len(names))]
+    lo = min(float(v.min()) for _, _, v in maps)
+    hi = max(float(v.max()) for _, _, v in maps)
+    cols = min(len(names), max(1, math.ceil(math.sqrt(len(names)))))
+    rows = math.ceil(len(names) / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols + 1.0, 2.8 * rows + 0.6), dpi=100, squeeze=False)
+    mesh = None
+    for c, name in enumerate(names):
+        ax = axes[c // cols][c % cols]
+        mesh = _panel(ax, space, i, j, *maps[c], buffers[c] if c < len(buffers) else None, lo, hi)
+        ax.set_title(name + (f"  Vbar {vbar[c]:.3g}" if vbar is not None else ""), fontsize=7)
+        ax.tick_params(labelsize=6)
+        ax.xaxis.label.set_size(7)
+        ax.yaxis.label.set_size(7)
+    for c in range(len(names), rows * cols):
+        axes[c // cols][c % cols].set_visible(False)
+    fig.colorbar(mesh, ax=axes.ravel().tolist(), label="Vm (expected return)")
+    fig.suptitle(title or "marginal value Vm per motion class", fontsize=9)
+    return _save(fig, path)
 
 
 def _plot_1d(vm: MarginalValue, space: ParamSpace, buffer: np.ndarray | None, path: Path,
@@ -104,9 +176,45 @@ def plot_state(state: dict[str, Any], space: ParamSpace, path: str | Path,
     if not has_map(space, params):
         return None
     meta, arrays = state["meta"], state["arrays"]
-    vm = MarginalValue(space.low_array, space.high_array, tuple(meta["vm"]["hidden"]))
+    classes = [str(c) for c in meta["vm"].get("classes", [])]
+    vm = MarginalValue(space.low_array, space.high_array, tuple(meta["vm"]["hidden"]), classes=classes)
     vm.load_state(meta["vm"], {k[3:]: np.asarray(v) for k, v in arrays.items() if k.startswith("vm/")})
     buffer = np.asarray(arrays["buffer"], dtype=np.float64).reshape(-1, space.dim)
     title = (f"Vm and buffer: iteration {meta['last_tick']}, refill {meta['generation']}, "
              f"Vbar {meta['vm']['vbar']:.3g}")
+    if classes:  # the sampler's buffers, one per class, side by side (`ShapeSampler`)
+        per = len(buffer) // len(classes)
+        buffers = [buffer[c * per:(c + 1) * per] for c in range(len(classes))]
+        return plot_class_map(vm, space, buffers, path, params, resolution, title, vbar=vm.vbar_c)
     return plot_marginal_value(vm, space, buffer, path, params, resolution, title)
+
+
+def space_of_state(state: dict[str, Any]) -> ParamSpace:
+    """The parameter box a sampler state was saved over (its names and Vm's box; the base values
+    are the box's centres: a state does not keep the task's defaults)."""
+    meta = state["meta"]
+    return ParamSpace(names=tuple(meta["names"]), low=tuple(meta["vm"]["low"]), high=tuple(meta["vm"]["high"]))
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """`python -m sampler.plot STATE OUT.png [--params A B]`: the Vm map (or the class map) of a
+    saved sampler state (a state directory or its `sampler-state.npz`)."""
+    from sampler import state_file  # lazy: only for the command
+
+    ap = argparse.ArgumentParser(prog="python -m sampler.plot", description=main.__doc__)
+    ap.add_argument("state", help="the sampler's state directory (<run>/sampler) or its sampler-state.npz")
+    ap.add_argument("out", help="PNG to write")
+    ap.add_argument("--params", nargs=2, default=None, metavar=("X", "Y"), help="the map's two parameters")
+    args = ap.parse_args(argv)
+    where = Path(args.state)
+    state = state_file.load(where.parent if where.name == state_file.FILE else where)
+    if state is None:
+        ap.error(f"no readable sampler state in {where}")
+    space = space_of_state(state)
+    out = plot_state(state, space, args.out, params=args.params)
+    print(out if out is not None else "no map: an axis of the box has no width")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

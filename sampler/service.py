@@ -3,7 +3,8 @@
 Requests and their replies (messages of `common.wire`):
     DrawRequestMsg   -> DrawReplyMsg     n draws from the buffer (+ clip ids, + start times with
                                          time bins on)
-    ValueReportMsg   -> OkMsg            (params, V) pairs for the next Vm fit, training segments
+    ValueReportMsg   -> OkMsg            (params, V) pairs (and each pair's clip, with shape_by_class)
+                                         for the next Vm fit, training segments
                                          per clip and failure times; a resend with the same
                                          `report_id` is stored once (`reports/duplicates`); a bad
                                          failure time is refused alone, counted and named in the
@@ -94,13 +95,23 @@ def _check_restored(s: ShapeSampler) -> None:
         raise ValueError(f"sampler state order is not a permutation of the {n} buffer rows")
     if not 0 <= s._cursor <= n:
         raise ValueError(f"sampler state cursor = {s._cursor}; allowed: [0, {n}]")
+    if s.class_names:
+        per, classes = s.per_class, len(s.class_names)
+        if n != per * classes:
+            raise ValueError(f"sampler state buffer of {n} rows for {classes} classes: expected the same number per class")
+        for c in range(classes):
+            if not np.array_equal(np.sort(s._order[c * per:(c + 1) * per]), np.arange(c * per, (c + 1) * per)):
+                raise ValueError(f"sampler state order of class {s.class_names[c]!r} is not a permutation of its rows")
+        if s._class_cursor.shape != (classes,) or (s._class_cursor < 0).any() or (s._class_cursor > per).any():
+            raise ValueError(f"sampler state class cursors {s._class_cursor.tolist()[:4]}: expected {classes}, "
+                             f"each in [0, {per}]")
     if min(s.generation, s.draws_served, s.last_refill_iteration, s.last_tick + 1, s.pairs_taken, s.pairs_trimmed) < 0:
         raise ValueError("sampler state counters must not be negative")
     pending = [np.asarray(a) for a in (*s._pending_params, *s._pending_values)]
     if not all(np.isfinite(a).all() for a in pending):
         raise ValueError("sampler state pending pairs hold NaN or Inf")
     vm = s.vm
-    numbers = [vm.mu, vm.sigma, vm.vbar, *(float(p.detach().abs().max()) for p in vm.net.parameters())]
+    numbers = [vm.mu, vm.sigma, vm.vbar, *vm.vbar_c, *vm.probe_std_c, *(float(p.detach().abs().max()) for p in vm.net.parameters())]
     if not np.isfinite(numbers).all() or not np.isfinite(vm.probe).all() or vm.sigma <= 0:
         raise ValueError("sampler state Vm holds NaN, Inf or a non-positive scale")
 
@@ -155,8 +166,9 @@ class SamplerService:
                 # A retry whose first try was stored (the reply was lost): idempotent, like a tick.
                 self.duplicate_reports += 1
                 return wire.OkMsg(info=f"report {msg.report_id} already stored ({self.reports[msg.report_id]} pairs)")
+            per_pair = {"pair_clips": msg.pair_clip_ids} if msg.pair_clip_ids else {}  # sent to shape_by_class only
             m = s.report(msg.params, msg.values, (msg.clip_ids, msg.clip_segments, msg.clip_tracked),
-                         (msg.fail_clip_ids, msg.fail_times_s))
+                         (msg.fail_clip_ids, msg.fail_times_s), **per_pair)
             if msg.report_id:
                 self.reports[msg.report_id] = m
                 while len(self.reports) > REPORT_IDS_KEPT:
