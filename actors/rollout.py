@@ -43,6 +43,8 @@ class RolloutWorker:
         self.rng = np.random.default_rng(seed)
         self._obs = np.zeros((self.n_envs, self.obs_dim), np.float32)
         self._params = np.zeros((self.n_envs, self.n_params), np.float32)
+        self._clips: list[str | None] = [None] * self.n_envs
+        """The clip each environment's episode was drawn with (None: the task has no clips)."""
         self._ep_return = np.zeros(self.n_envs)
         self._ep_length = np.zeros(self.n_envs, np.int64)
         for i in range(self.n_envs):
@@ -56,6 +58,7 @@ class RolloutWorker:
         params, clip_id, start_s = self.draw()
         self._obs[i] = self.batch.reset_one(i, int(self.rng.integers(2**31)), params, clip_id, start_s)
         self._params[i] = params
+        self._clips[i] = clip_id
         self._ep_return[i] = 0.0
         self._ep_length[i] = 0
 
@@ -70,12 +73,17 @@ class RolloutWorker:
         terminated = np.zeros((T, N), bool)
         truncated = np.zeros((T, N), bool)
         params = np.zeros((T, N, self.n_params), np.float32)
+        step_clips = np.full((T, N), -1, np.int32)
+        clip_index: dict[str, int] = {}
         returns: list[float] = []
         lengths: list[int] = []
         divergences = 0
         for t in range(T):
             obs[t] = self._obs
             params[t] = self._params
+            for i, clip in enumerate(self._clips):
+                if clip is not None:
+                    step_clips[t, i] = clip_index.setdefault(clip, len(clip_index))
             act, lp = self.policy.act(self._obs)
             if not np.isfinite(act).all():
                 # NOTE: never feed NaN to MuJoCo: it would reset silently and poison the unroll.
@@ -123,6 +131,8 @@ class RolloutWorker:
             segment_clips=[clip for clip, _, _ in segments],
             segment_tracked=[int(tracked) for _, tracked, _ in segments],
             segment_times=[at for _, _, at in segments],
+            clip_names=list(clip_index),
+            step_clips=step_clips if clip_index else np.zeros((0, 0), np.int32),
         )
         self.seq += 1
         return msg

@@ -112,11 +112,28 @@ class Learner:
     def value_pairs(self, unrolls: list[wire.UnrollMsg], n: int) -> tuple[np.ndarray, np.ndarray]:
         """`n` random `(task parameters, V(s))` pairs from these unrolls, for the sampler's
         marginal value fit (Won & Lee 2019, Algorithm 1)."""
+        params, values, _ = self.value_triples(unrolls, n)
+        return params, values
+
+    def value_triples(self, unrolls: list[wire.UnrollMsg], n: int) -> tuple[np.ndarray, np.ndarray, list[str]]:
+        """`value_pairs` and the clip each pair's episode was drawn with (`UnrollMsg.step_clips`;
+        "" for a step without one), for a sampler that fits Vm over (shape, class)."""
         obs = np.concatenate([u.obs.reshape(-1, self.obs_dim) for u in unrolls])
         params = np.concatenate([u.params.reshape(-1, u.params.shape[-1]) for u in unrolls])
+        names: list[str] = []
+        steps = []
+        for u in unrolls:  # every unroll's step clips as indices into one list of names ("" last: none)
+            offset = len(names)
+            names += list(u.clip_names)
+            if u.step_clips.size:
+                steps.append(np.where(u.step_clips >= 0, u.step_clips.astype(np.int64) + offset, -1).reshape(-1))
+            else:
+                steps.append(np.full(u.rewards.size, -1, np.int64))
+        step_clips = np.concatenate(steps)
+        names.append("")
         idx = self.rng.choice(len(obs), size=min(n, len(obs)), replace=False)
         values = self.ppo.values_of(torch.as_tensor(obs[idx], device=self.device)).cpu().numpy()
-        return params[idx].astype(np.float32), values.astype(np.float32)
+        return params[idx].astype(np.float32), values.astype(np.float32), [names[i] for i in step_clips[idx]]
 
     def apply_update(self, batch: Batch, env_steps: int) -> dict[str, float]:
         """The PPO update on a CPU batch at `env_steps` into the run (learning-rate schedule and

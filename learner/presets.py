@@ -163,12 +163,23 @@ def _track_preset() -> RunConfig:
     )
 
 
+SHAPE_CLASS_SAMPLER = dict(shape_by_class=True, k=5.0, p_mcmc=20, vm_fit_steps=64)
+"""What `executor-shape` changes in `executor-track`'s sampler (issue 55 item 2)."""
+
+
 def _shape_executor_preset() -> RunConfig:
     """`executor-track` over the humanoid's body shapes (issue 55 item 1): its task with
     `vary_shape` on (`common.tasks.executor.presets`, variant "shape"), its learner unchanged.
-    The shapes come from the sampler's buffer as the other executor presets draw them: uniform
-    over the box (k = 0), 100 shapes refilled every 1,000 iterations."""
-    return dataclasses.replace(_track_preset(), name="executor-shape", task=executor_task("shape"))
+
+    Shape and motion class drawn together (item 2, `--sampler.shape-by-class`): Vm is fitted
+    over (shape, class of the clip) and each class keeps 100 shapes drawn from exp(-k Vm / Vbar_c),
+    while the balancer still picks every episode's clip. The other executor presets fit no Vm
+    worth sampling from (k = 0, one Adam step per iteration, a refill every 1,000 iterations);
+    here Won & Lee's settings are back (SamplerConfig's defaults: k = 5, a refill every 20
+    iterations, 64 Adam steps per iteration on the 4,096 pairs of each)."""
+    base = _track_preset()
+    return dataclasses.replace(base, name="executor-shape", task=executor_task("shape"),
+                               sampler=dataclasses.replace(base.sampler, **SHAPE_CLASS_SAMPLER))
 
 
 def _add_executor_presets() -> None:

@@ -58,6 +58,8 @@ class Report:
     values: np.ndarray
     clips: tuple
     failures: tuple = ((), ())
+    pair_clips: tuple = ()
+    """The clip of each pair's episode (a sampler with `shape_by_class`); empty otherwise."""
 
 
 @dataclass
@@ -137,21 +139,38 @@ class SamplerHandle:
 
     def report_and_tick(self, params: np.ndarray, values: np.ndarray, iteration: int,
                         clips: tuple[list[str], list[int], list[int]] = ([], [], []),
-                        failures: tuple[list[str], list[float]] = ([], [])) -> dict[str, float]:
+                        failures: tuple[list[str], list[float]] = ([], []),
+                        pair_clips: Sequence[str] = ()) -> dict[str, float]:
         """Queue the value pairs, `clips` (the training segments per clip since the last call:
         ids, segments, tracked; only clips the sampler draws are sent) and `failures` (clip ids
         and clip times of the failed segments, sent only when the sampler keeps time bins; the
         sampler checks every time against its clip), deliver what is queued, then tick. Pairs
         the sampler cannot take now wait in a bounded queue (`MAX_UNSENT_PAIRS`) and go with the
         next call that reaches it; the oldest are dropped beyond the bound and counted in
-        `pairs_lost`, as are pairs a restarted sampler no longer holds."""
+        `pairs_lost`, as are pairs a restarted sampler no longer holds.
+
+        `pair_clips`: the clip of each pair's episode, sent only to a sampler with
+        `shape_by_class` (which needs one per pair); a pair without a clip it draws cannot be
+        fitted there, so it is left out and counted in `pairs_lost`."""
         known = {cid for cid, _ in self.clips}
+        if self.config.shape_by_class:
+            pair_clips = list(pair_clips) if len(pair_clips) == len(values) else [""] * len(values)
+            fit = [i for i, cid in enumerate(pair_clips) if cid in known]
+            if len(fit) < len(values):
+                self.pairs_lost += len(values) - len(fit)
+                log.warning("%d value pairs without a clip the sampler draws: not sent (lost, counted)",
+                            len(values) - len(fit))
+                params, values = np.asarray(params)[fit], np.asarray(values)[fit]
+                pair_clips = [pair_clips[i] for i in fit]
+        else:
+            pair_clips = []
         keep = [i for i, cid in enumerate(clips[0]) if cid in known]
         clips = tuple([part[i] for i in keep] for part in clips)
         keep = [i for i, cid in enumerate(failures[0]) if cid in known] if self.config.time_bin_s > 0 else []
         failures = tuple([part[i] for i in keep] for part in failures)
         if len(values):
-            self._queue(Report(self.client.new_report_id(), np.asarray(params), np.asarray(values), clips, failures))
+            self._queue(Report(self.client.new_report_id(), np.asarray(params), np.asarray(values), clips, failures,
+                               tuple(pair_clips)))
         self._deliver()
         stats = self._call("tick", lambda: self.client.tick(iteration), {})
         if stats:  # no answer says nothing about a restart
@@ -172,7 +191,8 @@ class SamplerHandle:
         while self.unsent and time.monotonic() >= self.down_until:
             r = self.unsent[0]
             try:
-                self.client.report(r.params, r.values, r.clips, r.failures, report_id=r.report_id)
+                self.client.report(r.params, r.values, r.clips, r.failures, report_id=r.report_id,
+                                   pair_clips=r.pair_clips)
             except ServiceUnavailable as exc:
                 self.failures += 1
                 self.down_until = time.monotonic() + RETRY_AFTER_S

@@ -278,10 +278,10 @@ def _iterate(run: Run, start_steps: int, start_time: float) -> dict[str, float] 
     metrics = learner.update(unrolls)
     run.transport.publish(learner.weights_msg())
     t2 = time.monotonic()
-    params, values = learner.value_pairs(unrolls, cfg.value_pairs_per_iteration)
+    params, values, pair_clips = learner.value_triples(unrolls, cfg.value_pairs_per_iteration)
     with run.sampler.quick() if run.stop else contextlib.nullcontext():  # stopping: no long sampler timeouts
         metrics.update(run.sampler.report_and_tick(params, values, learner.iteration, learner.take_clip_segments(),
-                                                   learner.take_clip_failures()))
+                                                   learner.take_clip_failures(), pair_clips=pair_clips))
     if cfg.vm_plot_every and learner.iteration % cfg.vm_plot_every == 0:
         run.sampler.plot(run.run_dir / "sampler_vm.png")
     run.health.check()

@@ -15,6 +15,8 @@ report only ever see unrolls an honest actor could have sent:
     bounds_returns      an episode return its rewards and length cannot add up to
     bounds_divergences  more divergences than terminated steps (each divergence terminates one)
     bounds_segments     more clip segments than 2 per step and environment, or a clip the task lacks
+                        (of a segment or of a step's episode, `step_clips`), or step clips of
+                        another shape than the steps' or indexing no clip
     bounds_outages      more sampler outages than the actor's draws so far (one per episode start)
 """
 
@@ -88,12 +90,33 @@ class UnrollBounds:
         if unknown is not None:
             allowed = f"one of the task's {len(self.clip_ids)} clips" if self.clip_ids else "none (the task has no clips)"
             raise self._fail(msg, "segments", f"segment clip {unknown[:64]!r}; allowed: {allowed}")
+        self._check_step_clips(msg)
         n_envs = msg.rewards.shape[1] if msg.rewards.ndim == 2 else 0
         draws = n_envs + (msg.seq + 1) * steps
         if msg.sampler_outages > draws:
             raise self._fail(msg, "outages", f"sampler_outages = {msg.sampler_outages}; allowed: at most {draws} "
                                              f"(one per episode start: {n_envs} first ones and one per step "
                                              f"of unrolls 0..{msg.seq})")
+
+    def _check_step_clips(self, msg: wire.UnrollMsg) -> None:
+        """`step_clips` is empty or `[T, N]`, each entry -1 or an index into `clip_names`, which
+        name distinct clips of the task."""
+        names, idx = msg.clip_names, msg.step_clips
+        unknown = next((c for c in names if c not in self.clip_ids), None)
+        if unknown is not None:
+            allowed = f"one of the task's {len(self.clip_ids)} clips" if self.clip_ids else "none (the task has no clips)"
+            raise self._fail(msg, "segments", f"clip_names entry {unknown[:64]!r}; allowed: {allowed}")
+        if len(set(names)) != len(names):
+            raise self._fail(msg, "segments", "clip_names names a clip twice; allowed: each once")
+        if idx.size == 0 and idx.ndim == 2:
+            return
+        if idx.shape != msg.rewards.shape:
+            raise self._fail(msg, "segments", f"step_clips of shape {list(idx.shape)}; allowed: empty or "
+                                              f"{list(msg.rewards.shape)}, one per step")
+        if int(idx.min()) < -1 or int(idx.max()) >= len(names):
+            bad = int(idx.min()) if int(idx.min()) < -1 else int(idx.max())
+            raise self._fail(msg, "segments", f"step_clips entry {bad}; allowed: -1 (none) or an index in "
+                                              f"[0, {len(names)}) into clip_names")
 
     def _check_episodes(self, msg: wire.UnrollMsg) -> None:
         """Each episode that ended here ends at a done flag, in the actor's order (step, then

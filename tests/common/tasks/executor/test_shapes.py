@@ -38,8 +38,13 @@ def env() -> ExecutorEnv:
 def test_the_preset_is_executor_track_over_the_shape_box():
     track, shape = PRESETS["executor-track"][1], PRESETS["executor-shape"][1]
     assert shape.task.body.vary_shape and not track.task.body.vary_shape
-    as_track = dataclasses.replace(shape, name=track.name, task=dataclasses.replace(shape.task, body=track.task.body))
+    as_track = dataclasses.replace(shape, name=track.name, task=dataclasses.replace(shape.task, body=track.task.body),
+                                   sampler=track.sampler)
     assert as_track == track
+    # item 2: shape and class drawn together, with a Vm worth sampling from; nothing else of the sampler
+    assert shape.sampler.shape_by_class and not track.sampler.shape_by_class
+    assert shape.sampler == dataclasses.replace(track.sampler, shape_by_class=True, k=5.0, p_mcmc=20, vm_fit_steps=64)
+    assert not any(cfg.sampler.shape_by_class for name, (_, cfg) in PRESETS.items() if name != "executor-shape")
     space = task_space(shape.task)
     assert space.names == ("height", "thickness") and space.low == (0.75, 0.5) and space.high == (1.5, 1.5)
     pinned = task_space(track.task)
