@@ -75,3 +75,30 @@ def test_each_value_pair_goes_with_its_episodes_clip_to_a_sampler_over_classes()
                 assert "sampler/vm/class/root/loco/walk/vbar" in stats
         finally:
             handle.stop()
+
+
+def test_an_executor_run_fits_vm_over_shape_and_class(tmp_path):
+    """A serial executor run with `--sampler.shape-by-class`: the actors' step clips reach the
+    sampler with every value pair (none left out), Vm is fitted over the classes, and TensorBoard
+    has each class's Vbar_c and the lowest class."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    from learner import checkpoint
+    from learner.train import train
+    from sampler.shape_sampler import state_from_torch
+
+    base = PRESETS["executor-tiny"][1]
+    cfg = dataclasses.replace(
+        base, runs_dir=str(tmp_path), quiet=True, mode="serial", max_iterations=2, total_env_steps=10**6,
+        task=dataclasses.replace(base.task, executor=dataclasses.replace(base.task.executor, at_clip_end="stop")),
+        sampler=dataclasses.replace(base.sampler, shape_by_class=True, k=5.0, p_mcmc=1, vm_fit_steps=4))
+    assert train(cfg) == 0
+    state = state_from_torch(checkpoint.load_latest(tmp_path / "executor-tiny" / "ckpt")[1]["sampler"])
+    assert state["meta"]["version"] == 2 and state["meta"]["classes"]
+    assert state["meta"]["vm"]["pairs_seen"] > 0 and any(state["meta"]["vm"]["class_seen"])
+    tb = EventAccumulator(str(tmp_path / "executor-tiny" / "tb"), size_guidance={"scalars": 0})
+    tb.Reload()
+    tags = set(tb.Tags()["scalars"])
+    assert "sampler/vm/class/root/locomotion/walk/vbar" in tags and "sampler/vm/lowest_vbar" in tags
+    assert any(t.startswith("sampler/vm/lowest/") for t in tags)
+    assert tb.Scalars("faults/value_pairs_lost")[-1].value == 0
