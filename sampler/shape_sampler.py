@@ -44,6 +44,7 @@ import torch
 
 from common import device as devices
 from common.params import ParamError, ParamSpace
+from common.wire import MAX_KEY
 from common.motion.balancer import MotionBalancer
 from common.motion.clip_manager import ClipManager
 from sampler.clip_metrics import ClipMetrics, clip_class
@@ -451,7 +452,9 @@ class ShapeSampler:
         lowest = int(np.argmin(self.vm.vbar_c))
         out[f"vm/lowest/{self.class_names[lowest]}"] = float(self.vm.vbar_c[lowest])
         out["vm/lowest_vbar"] = float(self.vm.vbar_c[lowest])
-        return out
+        # NOTE: a key past the wire's limit (with the learner's "sampler/") would make the whole
+        # stats reply undecodable; a class that deep keeps only what fits (the clip metrics' rule).
+        return {k: v for k, v in out.items() if len(k) + len("sampler/") <= MAX_KEY}
 
     def state_dict(self) -> dict[str, Any]:
         """`{"meta": primitives, "arrays": numpy arrays}`: everything needed to continue exactly
