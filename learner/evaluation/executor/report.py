@@ -6,6 +6,14 @@ split (METHOD.md B "Evaluation"), with files and pictures.
     morphmimic evaluate --checkpoint runs/executor --clips humanoid3d_cartwheel humanoid3d_walk --starts 3
     morphmimic evaluate --checkpoint runs/executor --clips my_clips/ take.bvh --workers 2 --no-render
     morphmimic evaluate --checkpoint runs/executor --zero-action          # the same episodes with zero actions: the baseline
+    morphmimic evaluate --checkpoint runs/executor-shape --shapes 20 --starts 3   # every episode on 20 random bodies
+    morphmimic evaluate --checkpoint runs/executor-shape --morph --clips humanoid3d_walk   # the body changes as it tracks
+
+--shapes N (seed --seed, default 2019): every (clip, start) on each of N shapes drawn uniformly from
+the box of the checkpoint's parameterization (on a base-body checkpoint: zero-shot, the baseline);
+records carry their shape, the summary adds per-shape figures, and `shape_map.png` shows success
+over two shape parameters (--map-params, --bins) per class. Default --out `eval_shapes`.
+--morph: `learner/evaluation/executor/morph.py`.
 
 --clips takes clip ids, clip files (.npz, .bvh onto the humanoid, DeepMimic .txt) and folders
 of `.npz` clips; the default is every humanoid clip, tagged with its split of the checkpoint's
