@@ -4,6 +4,7 @@ render it to an H.264 video, with the zero-action and random-action agents for c
     morphmimic play --checkpoint learner/pretrained/lower_biped --seconds 10
     morphmimic play --checkpoint learner/pretrained/lower_biped --shape global_z=1.3 --out tall.mp4
     morphmimic play --checkpoint learner/pretrained/executor --clip humanoid3d_walk --out walk.mp4
+    morphmimic play --checkpoint runs/executor-shape --clip humanoid3d_walk --shape height=1.3 --out tall_walk.mp4
     morphmimic play --checkpoint learner/pretrained/executor --scheduler stitch \\
         --stitch humanoid3d_walk humanoid3d_run --out stitched.mp4
     morphmimic play --checkpoint learner/pretrained/executor --scheduler keyboard \\
@@ -56,7 +57,8 @@ class PlayOptions(SessionOptions):
     speed: float = 1.0
     """Playback speed: simulated seconds per real (or video) second."""
     shape: Annotated[tuple[tuple[str, float], ...], value_list(shape_pair, "NAME=VALUE", lambda p: f"{p[0]}={p[1]:g}")] = ()
-    """Shape parameters of a shape controller (morphmimic character PRESET --list names them)."""
+    """Shape parameters of a shape controller or of an executor trained over shapes (executor-shape),
+    the body built for the first episode (morphmimic character PRESET --list names them)."""
     scheduler: Scheduler = "dataset"
     """Where the executor's target frames come from."""
     stitch: Annotated[tuple[str, ...], value_list(str, "CLIP")] = ()

@@ -5,7 +5,12 @@ The agent is the checkpoint's policy (mean action), or, for comparison, zero act
 uniform random actions in [-1, 1]. What can change while it runs:
 
 - the body (shape controllers, Won & Lee 2019 section 3 "shape change on the fly"):
-  `set_shape` morphs it through `ImitateEnv.set_shape`, the state carried over;
+  `set_shape` morphs it through `ImitateEnv.set_shape`, the state carried over; an executor
+  trained over body shapes (`--task.body.vary-shape`, preset `executor-shape`) is morphed live
+  too, through `ExecutorEnv.set_shape` (the state carried over, the tracked clip retargeted onto
+  the new body at the same clip time) while it tracks a clip (dataset scheduler) or follows
+  the keyboard; under the stitch or video scheduler a change is refused (their buffered frames
+  are the old body's); `shape=` at the start builds that body for the first episode;
 - the target frames (the executor, UniCon 2020 "Schedulers"): `use_scheduler` swaps the
   executor's scheduler (dataset, stitch, keyboard, video) without touching the policy;
 - perturbations: `throw_projectile` (the executor's balls; a shape controller gets a push of
@@ -61,6 +66,7 @@ BODY_PRESETS: tuple[tuple[str, dict[str, float]], ...] = (
     ("tall", {"global_z": 1.4}), ("short", {"global_z": 0.6}), ("wide", {"global_x": 1.4, "global_y": 1.4}),
     ("long legs", {"leg_length": 1.5}), ("short legs", {"leg_length": 0.6}), ("long arms", {"arm_length": 1.5}),
     ("bigger", {"scale": 1.4}), ("smaller", {"scale": 0.6}),
+    ("tall", {"height": 1.4}), ("short", {"height": 0.8}), ("thick", {"thickness": 1.4}), ("thin", {"thickness": 0.6}),
 )
 """Won & Lee 2019 Figure 1's bodies by parameter name (`learner.evaluation.shape.morph_demo.SCHEDULES`' keyframes);
 a parameterization offers those whose parameters it has."""
@@ -73,7 +79,9 @@ RESET_CAUSES = {
 }
 """The causes `LiveSession.step` and `reset` record in `last_reset`; an executor ended by one of
 its reward terms (a checkpoint's own termination rule) records the term's name."""
-SHAPE_FIXED = {"executor": "the executor trains on the base humanoid", "reach": "the reach arm has no shape parameters"}
+SHAPE_FIXED = {"executor": "this executor trained on the base humanoid only (no --task.body.vary-shape; "
+                            "the executor-shape preset trains over shapes)",
+               "reach": "the reach arm has no shape parameters"}
 """Why a family's body cannot change shape (a shape controller's: it trained on one body)."""
 PUSH_MOMENTUM_NS = 20.0
 """A shape controller's stand-in for a projectile: the executor's 2 kg ball at 10 m/s."""
@@ -202,6 +210,9 @@ class LiveSession:
         self._base_masses: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.params = self.env.space.default_array.copy()
         if shape:
+            if not self.shape_can_change:
+                raise ValueError(f"{self.loaded.name}'s body cannot change shape "
+                                 f"({SHAPE_FIXED.get(self.kind, 'it trained on one body')})")
             self.params[: self.n_shape] = self.shape_vector(shape)
         self.reset(cause=None)
 
@@ -223,9 +234,10 @@ class LiveSession:
 
     @property
     def shape_can_change(self) -> bool:
-        """Shape controllers morph; the executor is trained on the base humanoid only (its box is pinned)."""
+        """Shape controllers morph, and so does an executor trained over body shapes; an executor
+        trained on the base humanoid only has its box pinned to the base shape."""
         lo, hi = self.shape_box
-        return self.kind == "shape" and bool(np.any(hi > lo))
+        return self.kind in ("shape", "executor") and bool(np.any(hi > lo))
 
     def body_presets(self) -> dict[str, dict[str, float]]:
         """Named bodies of this parameterization, as shape values (name -> value): "base" and,
@@ -360,7 +372,9 @@ class LiveSession:
 
     def set_shape(self, values: dict[str, float]) -> np.ndarray:
         """Morph the body to the current shape with `values` set, keeping its state (shape
-        controllers only); returns the new shape vector."""
+        controllers, and an executor trained over shapes: `ExecutorEnv.set_shape`, live under the
+        dataset and keyboard schedulers, refused under stitch and video); returns the new shape
+        vector. Nothing changes when a value is refused."""
         if not self.shape_can_change:
             why = SHAPE_FIXED.get(self.kind, "it trained on one body")
             raise ValueError(f"this checkpoint's body cannot change shape ({why})")
@@ -368,7 +382,7 @@ class LiveSession:
         self.env.set_shape(shape)
         self.params = np.concatenate([shape, np.asarray(self.params[self.n_shape :], float)])
         self._apply_mass()
-        self.obs = self.env._obs_safe()
+        self.obs = self.env.observe_now() if self.kind == "executor" else self.env._obs_safe()
         return shape
 
     def use_scheduler(self, scheduler) -> None:

@@ -252,8 +252,10 @@ class StudioGui:
         lo, hi = s.shape_box
         can = s.shape_can_change
         self.body_note.content = (
-            f"{len(s.shape_names)} shape parameters; dragging a slider morphs the body while it moves "
-            "(Won & Lee 2019); its state is kept." if can else
+            (f"{len(s.shape_names)} shape parameters; dragging a slider morphs the body while it moves "
+             "(Won & Lee 2019); its state is kept"
+             + ("; the tracked clip is retargeted onto the new body at the same clip time (live while it tracks a clip "
+                "or follows the keyboard; stitch and video refuse a change)." if s.kind == "executor" else ".")) if can else
             f"*{self.core.label} trains on one body: its shape cannot change (sliders disabled).*" if s.shape_names else
             f"*{self.core.label} has no shape parameters.*")
         self.shape_text.disabled = self.shape_apply.disabled = not can

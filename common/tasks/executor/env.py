@@ -44,6 +44,7 @@ import mujoco
 import numpy as np
 
 from common.characters import Character, CharacterFactory, load_character
+from common.characters.character import extent
 from common.characters.mass import scale_body_mass
 from common.characters.morph import lift_out_of_floor
 from common.characters.presets.humanoid import GAINS
@@ -614,6 +615,58 @@ class ExecutorEnv:
         self._segment_clip = getattr(self.scheduler, "clip_id", "")
         return self.observe_now(), {"clip_id": getattr(self.scheduler, "clip_id", ""), "rsis_offset": offset,
                                                    "on_frame": on_frame, "resumed": resumed}
+
+    def set_shape(self, shape: np.ndarray) -> np.ndarray:
+        """Change the body to `shape` `[P]` now, mid-episode (`vary_shape` only; ValueError naming a
+        value outside the box, or a scheduler that cannot follow a body). What carries over, and
+        how the reference follows:
+
+        - the state: the new shape's body (`ShapedBodies`, cached) is switched in and the
+          character's qpos and qvel (joint angles, root pose and velocities: the same joints
+          on every shape) and the simulation time are copied onto it, as are the projectile
+          balls' state and whether each collides; `scale_mass`'s factor applies to it; the root
+          is moved vertically so the body's lowest point is as high as before (a foot on the
+          floor stays on it, whether the legs grew or shrank), then lifted out of the floor if
+          another limb now reaches into it (`lift_out_of_floor`);
+        - the reference: the scheduler re-reads the tracked clip on the new body
+          (`body_changed`: the `DatasetScheduler` keeps the clip and its time and moves the
+          retargeted clip horizontally so its root now is where the old target's root was, as
+          `ImitateEnv.set_shape` does; the keyboard scheduler rebuilds its cycles on the new
+          body and goes on from its state); a swapped-in scheduler without `body_changed`
+          (stitch, video) is refused before anything changes;
+        - the episode: its step count, the previous action, the termination grace and the
+          reward's size normalization (the new body's leg ratio) go on; `params` (first in the
+          observation) become the new shape.
+
+        Returns the validated shape."""
+        if self._bodies is None:
+            raise ValueError("this environment's body does not vary (build it with --task.body.vary-shape)")
+        new = self.space.validate(shape).astype(np.float64)
+        follow = getattr(self.scheduler, "body_changed", None)
+        if follow is None:
+            raise ValueError(f"the {type(self.scheduler).__name__} cannot follow a body change (the frames it has "
+                             "made are the old body's); change the shape under the dataset or keyboard scheduler")
+        old_model, old = self.model, self.data
+        qpos, qvel, t = old.qpos.copy(), old.qvel.copy(), float(old.time)
+        mujoco.mj_kinematics(old_model, old)
+        lowest = extent(old_model, old, 2, self.bodies)[0]
+        self.params = new
+        self._use_body(self._bodies.get(new))
+        if self.model is old_model:
+            return new
+        self.data.qpos[:], self.data.qvel[:], self.data.time = qpos, qvel, t
+        mujoco.mj_kinematics(self.model, self.data)
+        self.data.qpos[2] += lowest - extent(self.model, self.data, 2, self.bodies)[0]
+        for i, ball in enumerate(self.balls):  # in flight or parked, each ball as it was
+            geom = int(old_model.body_geomadr[ball])
+            self.model.body_gravcomp[ball] = old_model.body_gravcomp[ball]
+            self.model.geom_contype[geom] = old_model.geom_contype[geom]
+            self.model.geom_conaffinity[geom] = old_model.geom_conaffinity[geom]
+            self.model.body_contype[ball] = old_model.body_contype[ball]
+            self.model.body_conaffinity[ball] = old_model.body_conaffinity[ball]
+        lift_out_of_floor(self.model, self.data)
+        follow()
+        return new
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
         obs, rewards, terminated, truncated, infos = step_envs([self], np.asarray(action)[None])

@@ -47,7 +47,8 @@ from common.motion.library import import_source
 from common.motion.mirror import MIRROR_SUFFIX
 from common.tasks.base import TaskConfig
 from common.tasks.executor import rewards as rw
-from common.tasks.executor.env import CHARACTER, humanoid_clips, labelled_clips
+from common.params import ParamSpace
+from common.tasks.executor.env import CHARACTER, ExecutorEnv, humanoid_clips, labelled_clips
 from common.tasks.registry import make_env
 from learner.config import RunConfig, _from_dict
 from learner.evaluation import harness
@@ -90,17 +91,21 @@ class Perturbation:
     character `mass` times heavier (`ExecutorEnv.scale_mass`); projectile_every: control steps
     between two throws of the projectile (0: none), thrown at steps 0, N, 2N, ... of the episode
     by `ExecutorEnv.throw_projectile(projectile_speed_mps, projectile_distance_m, rng)`, with an
-    rng seeded per (clip, start) so every row and checkpoint sees the same throws."""
+    rng seeded per (clip, start) so every row and checkpoint sees the same throws; shapes: every
+    (clip, start) on this many random body shapes (`eval_shapes(cfg, shapes, shape_seed)`, the body
+    varying whether or not the checkpoint trained so: `shape_task`)."""
 
     speed: float = 1.0
     mass: float = 1.0
     projectile_every: int = 0
     projectile_speed_mps: float = 10.0
     projectile_distance_m: float = 2.0
+    shapes: int = 0
+    shape_seed: int = 2019
 
     @property
     def is_identity(self) -> bool:
-        return self.speed == 1.0 and self.mass == 1.0 and self.projectile_every == 0
+        return self.speed == 1.0 and self.mass == 1.0 and self.projectile_every == 0 and self.shapes == 0
 
 
 # ---- which clips, which starts ----
@@ -202,14 +207,53 @@ def resolve_clips(values: Iterable[str], cfg: TaskConfig) -> list[EvalClip]:
 # ---- episodes ----
 
 
-def eval_task(cfg: TaskConfig, perturbation: Perturbation = Perturbation()) -> TaskConfig:
+def eval_task(cfg: TaskConfig, perturbation: Perturbation = Perturbation(), shapes: bool = False) -> TaskConfig:
     """The checkpoint's task as evaluated (module docstring): every humanoid clip and its mirror
     image trackable, a stopping scheduler, no reactive initialization, termination off (read off
-    the trajectory instead), a time limit no clip reaches; the row's playback speed and projectile body."""
+    the trajectory instead), a time limit no clip reaches; the row's playback speed and projectile
+    body. `shapes`: the body varies (`shape_task`), whether or not the checkpoint trained so."""
     ex = dataclasses.replace(cfg.executor, clips=(), split="all", mirror=True, at_clip_end="stop", reactive_init=False,
                              on_frame_share=0.0, catch_up_steps=0, termination="none", speed=perturbation.speed,
                              projectile=perturbation.projectile_every > 0)
-    return dataclasses.replace(cfg, episode_s=EVAL_EPISODE_S, executor=ex)
+    out = dataclasses.replace(cfg, episode_s=EVAL_EPISODE_S, executor=ex)
+    return shape_task(out) if shapes else out
+
+
+# ---- body shapes (issue 55 item 3) ----
+
+SHAPE_SEED = 2019
+"""Default seed of the evaluation's shape draws (the shape controllers' evaluation's too)."""
+
+
+def shape_task(cfg: TaskConfig) -> TaskConfig:
+    """`cfg` with the body varying over the whole box of its parameterization
+    (`--task.body.vary-shape`, box scale 1): each reset builds the body of the episode's shape
+    and retargets the clip onto it. On a checkpoint trained on the base body only this is the
+    zero-shot test (the baseline a shape executor is measured against): the same bodies, the
+    same retargeted clips, the same size-normalized position terms (the base body's factor is 1)."""
+    return dataclasses.replace(cfg, body=dataclasses.replace(cfg.body, vary_shape=True, shape_box_scale=1.0))
+
+
+def shape_space(cfg: TaskConfig) -> ParamSpace:
+    """The shape parameters' box the evaluation draws from (`shape_task`'s)."""
+    return ExecutorEnv.param_space(shape_task(cfg))
+
+
+def eval_shapes(cfg: TaskConfig, n: int, seed: int = SHAPE_SEED) -> np.ndarray:
+    """`[n, P]` shapes drawn uniformly over `shape_space(cfg)` by a generator seeded with `seed`
+    (`ParamSpace.uniform`): every checkpoint of one parameterization sees the same bodies."""
+    if n < 1:
+        raise ValueError(f"shapes = {n} must be >= 1")
+    return shape_space(cfg).uniform(np.random.default_rng(seed), n)
+
+
+def extremeness(space: ParamSpace, shapes: np.ndarray) -> np.ndarray:
+    """`[n]` how far each shape is from the base body: the L2 norm of its parameters mapped so
+    that the base value is 0 and each end of the box is +-1 (one scale per side; the shape
+    controllers' measure, `learner.evaluation.shape.episodes.extremeness`)."""
+    from learner.evaluation.shape.episodes import extremeness as shape_extremeness
+
+    return shape_extremeness(space, shapes)
 
 
 SETTABLE = ("ankle_armature", "arm_armature", "pd_velocity_target", "pd_action_scale", "effort_scale", "passive_damping",
@@ -263,9 +307,11 @@ def with_settings(loaded: checkpoint.Loaded, pairs: list[str]) -> checkpoint.Loa
     return dataclasses.replace(loaded, cfg=dataclasses.replace(loaded.cfg, task=task))
 
 
-def make_eval_env(loaded: checkpoint.Loaded, clips: Iterable[EvalClip], perturbation: Perturbation = Perturbation()):
-    """The evaluation environment with the imported clips registered and the mass scaled."""
-    env = make_env(eval_task(loaded.cfg.task, perturbation), seed=0)
+def make_eval_env(loaded: checkpoint.Loaded, clips: Iterable[EvalClip], perturbation: Perturbation = Perturbation(),
+                  shapes: bool = False):
+    """The evaluation environment with the imported clips registered and the mass scaled; with
+    `shapes`, one whose body varies (`shape_task`)."""
+    env = make_env(eval_task(loaded.cfg.task, perturbation, shapes), seed=0)
     for c in clips:
         if c.clip is not None:
             env.register_clip(c.clip_id, c.clip)
@@ -296,13 +342,16 @@ def first_failures(terms: dict[str, float], weights, alpha: float, own_rule: str
 
 def run_episode(env, policy, clip_id: str, start_s: float, own_rule: str, seed: int,
                 perturbation: Perturbation = Perturbation(), on_step: Callable[[Any, int], None] | None = None,
-                max_steps: int | None = None) -> dict[str, Any]:
+                max_steps: int | None = None, params: np.ndarray | None = None) -> dict[str, Any]:
     """One deterministic episode on `clip_id` from `start_s` in an `eval_task` environment;
     the record of the module docstring. `seed` seeds the projectile's directions. `max_steps`:
-    stop after that many control steps (what has not failed by then counts as not failed)."""
+    stop after that many control steps (what has not failed by then counts as not failed).
+    `params`: the body's shape (an environment whose body varies; default the base body).
+    `on_step(env, k)` runs after step k, before the observation is acted on (a morph there
+    changes the body the next action drives)."""
     ex = env.ex
     rng = np.random.default_rng(seed)
-    obs, _ = env.reset(seed, env.space.default_array, clip_id=clip_id, start_s=start_s)
+    obs, _ = env.reset(seed, env.space.default_array if params is None else params, clip_id=clip_id, start_s=start_s)
     planned = int(env.scheduler.status()["steps_left"])
     rewards: list[float] = []
     joint_err: list[float] = []
@@ -319,7 +368,9 @@ def run_episode(env, policy, clip_id: str, start_s: float, own_rule: str, seed: 
         obs, r, term, trunc, info = env.step(action[0])
         k += 1
         if on_step is not None:
-            on_step(env, k)
+            seen = on_step(env, k)
+            if seen is not None:  # the body changed (a morph): act on what is there now
+                obs = seen
         if info.get("diverged"):
             diverged = True
             for key in fail:
@@ -360,46 +411,61 @@ _WORKER: dict[str, Any] = {}
 
 
 def _init_worker(state_file: str, clips: list[EvalClip], perturbation: Perturbation, zero_action: bool = False,
-                 cfg_json: str = "", max_steps: int | None = None) -> None:
+                 cfg_json: str = "", max_steps: int | None = None, shapes: np.ndarray | None = None) -> None:
     torch.set_num_threads(1)
     loaded = checkpoint.load_trained(state_file)
     if cfg_json:  # the parent's config, with any `--set` in it
         loaded = dataclasses.replace(loaded, cfg=RunConfig.from_json(cfg_json))
-    env = make_eval_env(loaded, clips, perturbation)
+    env = make_eval_env(loaded, clips, perturbation, shapes is not None)
     policy = harness.ZeroPolicy(env.act_dim) if zero_action else checkpoint.make_policy(loaded, env.obs_dim, env.act_dim)
     _WORKER.update(env=env, policy=policy, rule=loaded.cfg.task.executor.termination, perturbation=perturbation,
-                   max_steps=max_steps)
+                   max_steps=max_steps, shapes=shapes)
 
 
-def _work(job: tuple[int, str, float]) -> dict[str, Any]:
-    i, clip_id, start_s = job
+def _work(job: tuple) -> dict[str, Any]:
+    i, clip_id, start_s, *shape = job
+    shapes = _WORKER.get("shapes")
+    params = None if not shape else shapes[shape[0]]
     out = run_episode(_WORKER["env"], _WORKER["policy"], clip_id, start_s, _WORKER["rule"], seed=i,
-                      perturbation=_WORKER["perturbation"], max_steps=_WORKER.get("max_steps"))
-    return {"index": i, **out}
+                      perturbation=_WORKER["perturbation"], max_steps=_WORKER.get("max_steps"), params=params)
+    extra = {} if not shape else {"shape_index": int(shape[0]), "shape": [float(x) for x in params]}
+    return {"index": i, **out, **extra}
 
 
-def episode_jobs(clips: list[EvalClip], durations: dict[str, float], starts: int) -> list[tuple[int, str, float]]:
-    """(index, clip_id, start_s) of every episode, clip-major; the index seeds the episode."""
-    jobs = []
+def episode_jobs(clips: list[EvalClip], durations: dict[str, float], starts: int,
+                 shapes: int = 0) -> list[tuple]:
+    """(index, clip_id, start_s) of every episode, clip-major; the index seeds the episode. With
+    `shapes` N > 0, (index, clip_id, start_s, shape index) of every (clip, shape, start), clip
+    then shape major (a clip's retargeting onto a body is made once and reused by its starts)."""
+    jobs: list[tuple] = []
     for c in clips:
-        for s in start_times(durations[c.clip_id], starts):
-            jobs.append((len(jobs), c.clip_id, s))
+        times = start_times(durations[c.clip_id], starts)
+        if not shapes:
+            jobs += [(len(jobs) + k, c.clip_id, s) for k, s in enumerate(times)]
+            continue
+        for j in range(shapes):
+            for s in times:
+                jobs.append((len(jobs), c.clip_id, s, j))
     return jobs
 
 
 def evaluate(loaded: checkpoint.Loaded, clips: list[EvalClip], starts: int, workers: int = 1,
              perturbation: Perturbation = Perturbation(), progress: Callable[[int, int], None] | None = None,
              durations: dict[str, float] | None = None, zero_action: bool = False,
-             max_steps: int | None = None) -> list[dict[str, Any]]:
+             max_steps: int | None = None, shapes: np.ndarray | None = None) -> list[dict[str, Any]]:
     """One episode per (clip, start) (`episode_jobs`), each record tagged with its clip's label
     and split, in job order. `durations` (clip time, s) fixes the start frames; by default they
     are read from an environment at normal speed, so every perturbation row starts the same frames.
     `zero_action`: act with zeros instead of the checkpoint's policy (`harness.ZeroPolicy`);
-    `max_steps`: stop every episode after that many control steps (`run_episode`)."""
+    `max_steps`: stop every episode after that many control steps (`run_episode`). `shapes`
+    `[N, P]` (`eval_shapes`): every (clip, start) on each of these bodies (`shape_task`), each
+    record carrying its `shape_index` and `shape`. The start frames are the base body's (a clip
+    retargeted onto a body keeps its timing)."""
     if durations is None:
         durations = clip_durations(make_eval_env(loaded, clips), clips)
-    jobs = episode_jobs(clips, durations, starts)
-    init = (str(loaded.path), list(clips), perturbation, zero_action, loaded.cfg.to_json(), max_steps)
+    jobs = episode_jobs(clips, durations, starts, 0 if shapes is None else len(shapes))
+    init = (str(loaded.path), list(clips), perturbation, zero_action, loaded.cfg.to_json(), max_steps,
+            None if shapes is None else np.asarray(shapes, dtype=np.float64))
     results = harness.run_jobs(_init_worker, init, _work, jobs, workers, progress)
     by_id = {c.clip_id: c for c in clips}
     for r in results:
@@ -413,7 +479,8 @@ be expected to track (`zero_action_ceiling`)."""
 
 
 def zero_action_ceiling(loaded: checkpoint.Loaded, clips: list[EvalClip], starts: int, workers: int = 1,
-                        records: list[dict] | None = None, steps: int = CEILING_STEPS) -> dict[str, Any]:
+                        records: list[dict] | None = None, steps: int = CEILING_STEPS,
+                        shapes: np.ndarray | None = None) -> dict[str, Any]:
     """The starts that fail within `steps` control steps with zero actions (the PD on the
     reference itself for PD targets, no torque for torques), run for those steps only on the
     same (clip, start) jobs as `evaluate`: such a start is lost before any policy could act on
@@ -421,8 +488,9 @@ def zero_action_ceiling(loaded: checkpoint.Loaded, clips: list[EvalClip], starts
     the others is the ceiling of success. Returns {"steps", "episodes", "failed", "failed_pct",
     "ceiling_pct", "pose_failed", "pose_ceiling_pct" (the same by the pose terms), "by_split":
     {split: those}, "starts": [(clip_id, start_s)] of the failed ones}, and with the policy's
-    `records` of the same jobs "policy_success_on_failed": how many of those the policy tracked."""
-    zero = evaluate(loaded, clips, starts, workers, zero_action=True, max_steps=steps)
+    `records` of the same jobs "policy_success_on_failed": how many of those the policy tracked.
+    `shapes`: the same jobs on those bodies (`evaluate`)."""
+    zero = evaluate(loaded, clips, starts, workers, zero_action=True, max_steps=steps, shapes=shapes)
 
     def agg(rs: list[dict]) -> dict[str, Any]:
         n = len(rs)
@@ -438,7 +506,7 @@ def zero_action_ceiling(loaded: checkpoint.Loaded, clips: list[EvalClip], starts
         by_split[r["split"]].append(r)
     out["by_split"] = {k: agg(by_split[k]) for k in SPLITS if k in by_split}
     failed = [r for r in zero if r["fail_step"] is not None and r["fail_step"] <= steps]
-    out["starts"] = [(r["clip_id"], r["start_s"]) for r in failed]
+    out["starts"] = [(r["clip_id"], r["start_s"], *([r["shape_index"]] if "shape_index" in r else [])) for r in failed]
     if records is not None:
         by_index = {r["index"]: r for r in records}
         out["policy_success_on_failed"] = sum(bool(by_index[r["index"]]["success"]) for r in failed if r["index"] in by_index)
@@ -509,19 +577,66 @@ def by_split(records: list[dict], level: int) -> dict[str, dict[str, dict[str, A
     return dict(sorted(out.items()))
 
 
-def summarize(records: list[dict], clips: list[EvalClip]) -> dict[str, Any]:
+def summarize(records: list[dict], clips: list[EvalClip], space: ParamSpace | None = None) -> dict[str, Any]:
     """Per clip (with its label and split), per class (label), per split (in `SPLITS` order),
-    per content and per style of the two-level labelled takes (each by split), and overall."""
+    per content and per style of the two-level labelled takes (each by split), and overall;
+    with records on shapes (`evaluate(..., shapes=...)`) and their `space`, also per shape
+    (`shape_summary`)."""
     per_clip = group_stats(records, "clip_id")
     meta = {c.clip_id: c for c in clips}
     for cid, s in per_clip.items():
         s.update(label=meta[cid].label, split=meta[cid].split, **({"source": meta[cid].source} if meta[cid].source else {}))
     splits = group_stats(records, "split")
-    return {
+    out = {
         "overall": stats(records),
         "splits": {k: splits[k] for k in SPLITS if k in splits},
         "classes": dict(sorted(group_stats(records, "label").items())),
         "contents": by_split(records, 0),
         "styles": by_split(records, 1),
         "clips": per_clip,
+    }
+    if space is not None and any("shape_index" in r for r in records):
+        out["shapes"] = shape_summary(records, space)
+    return out
+
+
+EXTREME_SHARE = 0.1
+"""The share of the shapes farthest from the base body (`extremeness`) the summary reports apart."""
+
+
+def shape_summary(records: list[dict], space: ParamSpace) -> dict[str, Any]:
+    """Per shape: its parameters (name -> value), `extremeness` and `stats` over every (clip,
+    start) on it, in shape order ("per_shape"); the spread of per-shape success and PHC success
+    (min, median, max %) and `stats` over the most extreme `EXTREME_SHARE` of the shapes and over
+    the rest ("extreme", "rest"), each by split too."""
+    groups: dict[int, list[dict]] = defaultdict(list)
+    for r in records:
+        groups[int(r["shape_index"])].append(r)
+    order = sorted(groups)
+    params = np.array([groups[j][0]["shape"] for j in order])
+    ext = extremeness(space, params)
+    per_shape = []
+    for j, e in zip(order, ext):
+        row = {"index": j, "params": dict(zip(space.names, map(float, groups[j][0]["shape"]))), "extremeness": float(e),
+               **stats(groups[j])}
+        per_shape.append(row)
+    k = max(1, int(round(EXTREME_SHARE * len(order))))
+    extreme = {order[i] for i in np.argsort(ext)[::-1][:k]}
+
+    def spread(key: str) -> dict[str, float]:
+        xs = [row[key] for row in per_shape]
+        return {"min": float(np.min(xs)), "median": float(np.median(xs)), "max": float(np.max(xs))}
+
+    def part(rs: list[dict]) -> dict[str, Any]:
+        split = group_stats(rs, "split")
+        return {**stats(rs), "splits": {s: split[s] for s in SPLITS if s in split}}
+
+    return {
+        "names": list(space.names), "low": [float(x) for x in space.low], "high": [float(x) for x in space.high],
+        "base": [float(x) for x in space.default_array], "count": len(order),
+        "success_pct": spread("success_pct"), "phc_success_pct": spread("phc_success_pct"),
+        "extreme_share": EXTREME_SHARE, "extreme_shapes": sorted(extreme),
+        "extreme": part([r for r in records if r["shape_index"] in extreme]),
+        "rest": part([r for r in records if r["shape_index"] not in extreme]),
+        "per_shape": per_shape,
     }

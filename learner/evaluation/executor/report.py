@@ -6,6 +6,14 @@ split (METHOD.md B "Evaluation"), with files and pictures.
     morphmimic evaluate --checkpoint runs/executor --clips humanoid3d_cartwheel humanoid3d_walk --starts 3
     morphmimic evaluate --checkpoint runs/executor --clips my_clips/ take.bvh --workers 2 --no-render
     morphmimic evaluate --checkpoint runs/executor --zero-action          # the same episodes with zero actions: the baseline
+    morphmimic evaluate --checkpoint runs/executor-shape --shapes 20 --starts 3   # every episode on 20 random bodies
+    morphmimic evaluate --checkpoint runs/executor-shape --morph --clips humanoid3d_walk   # the body changes as it tracks
+
+--shapes N (seed --seed, default 2019): every (clip, start) on each of N shapes drawn uniformly from
+the box of the checkpoint's parameterization (on a base-body checkpoint: zero-shot, the baseline);
+records carry their shape, the summary adds per-shape figures, and `shape_map.png` shows success
+over two shape parameters (--map-params, --bins) per class. Default --out `eval_shapes`.
+--morph: `learner/evaluation/executor/morph.py`.
 
 --clips takes clip ids, clip files (.npz, .bvh onto the humanoid, DeepMimic .txt) and folders
 of `.npz` clips; the default is every humanoid clip, tagged with its split of the checkpoint's
@@ -36,13 +44,16 @@ import matplotlib.pyplot as plt
 import tyro
 from matplotlib.patches import Patch
 
-from common.config_limits import Limit, at_least, check_limits, validated
+from common.config_limits import FINITE, SEED, Limit, at_least, check_limits, validated
+from common.params import ParamSpace
 from common.motion.errors import ClipError
 from common.tasks.executor.rewards import POSE_TERMS, TERMS
 from learner.cli_options import parse_options, refuse, value_list
+from learner.evaluation import harness
 from learner.evaluation.executor import EXECUTOR_ONLY_OPTIONS
 from learner import checkpoint
 
+from learner.evaluation.shape import morph_demo
 from learner.evaluation.shape import plots as eval_plots
 
 from learner.evaluation.executor import evaluate as xe
@@ -92,13 +103,36 @@ class ClipOptions:
         check_limits(self)
 
 
+MapParams = Annotated[tuple[str, ...], value_list(str, "X Y", nargs=2)]
+
+
 @validated
 @dataclass(kw_only=True)
 class ReportOptions(ClipOptions):
     checkpoint: str
     """Checkpoint dir, state.pt or run dir of an executor run."""
     out: str = ""
-    """Output directory (default: <checkpoint dir>/eval_clips)."""
+    """Output directory (default: <checkpoint dir>/eval_clips, with --shapes eval_shapes)."""
+    shapes: int = 0
+    """Run every (clip, start) on this many random body shapes drawn uniformly from the box of the
+    checkpoint's parameterization (seeded by --seed); on a checkpoint trained on the base body
+    only this is the zero-shot test. 0: the base body only."""
+    seed: int = xe.SHAPE_SEED
+    """With --shapes: seed of the shape draws (fixed: every checkpoint sees the same bodies)."""
+    map_params: MapParams = ()
+    """With --shapes: the two shape parameters of shape_map.png (default: the run's sampler.plot_params,
+    else the parameterization's first two)."""
+    bins: int = 4
+    """With --shapes: cells per axis of shape_map.png."""
+    morph: bool = False
+    """Change the body while the executor tracks the first --clips clip (default humanoid3d_walk):
+    learner/evaluation/executor/morph.py; writes morph.json, morph.png into --out (default <checkpoint dir>/morph)."""
+    strength: float = 1.0
+    """With --morph: scale of the keyframes' deviation from the base body."""
+    schedule: morph_demo.Schedule = ()
+    """With --morph: JSON keyframes, e.g. '[[0, {}], [3, {"height": 1.3}], [6, {}]]' (default: the parameterization's)."""
+    every: int = 1
+    """With --morph: change the body every this many control steps."""
     render: bool = True
     """Write the best/worst clip strips."""
     gif: bool = False
@@ -108,6 +142,19 @@ class ReportOptions(ClipOptions):
     itself; torque: no torque), the baseline that shows what the policy adds; no best/worst strips;
     default --out <checkpoint dir>/eval_clips_zero_action."""
     settings: Settings = ()
+
+    LIMITS: ClassVar[dict[str, Limit]] = {**ClipOptions.LIMITS, "shapes": at_least(0), "seed": SEED, "bins": at_least(1),
+                                          "strength": FINITE, "every": at_least(1)}
+
+    def validate(self) -> None:
+        check_limits(self)
+
+
+SHAPES_ONLY = ("seed", "map_params", "bins")
+"""Options that only act with --shapes: refused without it rather than ignored."""
+MORPH_ONLY = ("strength", "schedule", "every")
+NOT_MORPH = ("shapes", "seed", "map_params", "bins", "starts", "workers", "zero_action", "settings", "render")
+"""Evaluation options the morph run does not take (it runs one clip on a schedule of bodies)."""
 
 
 def select_clips(prog: str, values: tuple[str, ...], loaded: checkpoint.Loaded) -> list[xe.EvalClip]:
@@ -172,10 +219,12 @@ def markdown(loaded: checkpoint.Loaded, summary: dict, meta: dict, files: list[s
         "episodes only; **tracked %**: the share of the clip before the first term fell below alpha.", "",
         "Splits: train = clips the checkpoint trained on; test = UniCon's held-out split of its config; unused = other "
         "humanoid clips it did not train on; imported = files.", "",
+        *shape_protocol(loaded, summary, meta),
         "## By split", "", head, rule,
         *(stats_row(k, s) for k, s in summary["splits"].items()),
         stats_row("**all**", summary["overall"]), "",
         *([ceiling_line(summary["zero_action_ceiling"]), ""] if summary.get("zero_action_ceiling") else []),
+        *shape_tables(summary.get("shapes")),
         "## By class", "", "| class " + STATS_HEAD, rule,
         *(stats_row(f"`{k}`", s) for k, s in summary["classes"].items()), "",
         *label_level_table("content", summary.get("contents", {})),
@@ -192,6 +241,56 @@ def markdown(loaded: checkpoint.Loaded, summary: dict, meta: dict, files: list[s
                      f"| {_f(s['reward_per_step'], '.3f')} | {_f(s['tracked_pct'])} | {ended} |")
     lines += ["", "Files: " + ", ".join(f"`{Path(f).name}`" for f in files), ""]
     return "\n".join(lines)
+
+
+def shape_protocol(loaded: checkpoint.Loaded, summary: dict, meta: dict) -> list[str]:
+    """The summary's paragraph on the body shapes (`--shapes`); none on the base body alone."""
+    sh = summary.get("shapes")
+    if not sh:
+        return []
+    box = ", ".join(f"{n} [{lo:g}, {hi:g}] (base {b:g})" for n, lo, hi, b in zip(sh["names"], sh["low"], sh["high"], sh["base"]))
+    trained = loaded.cfg.task.body
+    how = (f"The checkpoint trained over body shapes (`--task.body.vary-shape`, parameterization `{trained.parameterization}`"
+           f"{'' if trained.shape_box_scale == 1.0 else f', its box shrunk x{trained.shape_box_scale:g} toward the base'}). "
+           if trained.vary_shape else
+           "**Zero-shot**: the checkpoint trained on the base body only (no `--task.body.vary-shape`); these bodies are "
+           "new to it (the baseline a shape executor is compared with). ")
+    return [
+        f"**Body shapes**: every (clip, start) above is run on each of {sh['count']} shapes drawn uniformly (numpy "
+        f"`default_rng({meta['shape_seed']})`, `ParamSpace.uniform`) from the whole box of parameterization "
+        f"`{trained.parameterization}`: {box}. {how}Each episode builds the body of its shape and retargets the clip onto "
+        "it (root height and stride by leg length, stance feet kept on the floor), and the two position terms of the "
+        "reward are normalized by the body's size as in training with vary-shape (the base body's factor is 1). The "
+        "figures by split, class and clip are over every shape; the start frames are the base body's (retargeting keeps "
+        "a clip's timing). Success over two shape parameters per class: `shape_map.png`.", ""]
+
+
+def shape_tables(sh: dict | None) -> list[str]:
+    """Markdown lines: the per-shape spread, the most extreme shapes against the rest, and each shape's row."""
+    if not sh:
+        return []
+    names = sh["names"]
+    spread = lambda d: f"{d['min']:.1f} / {d['median']:.1f} / {d['max']:.1f}"  # noqa: E731
+    head = "| group " + STATS_HEAD
+    rule = "|---" * 10 + "|"
+    lines = [
+        "## By body shape", "",
+        f"Per-shape success % min / median / max over the {sh['count']} shapes: {spread(sh['success_pct'])}; "
+        f"PHC success %: {spread(sh['phc_success_pct'])}.", "",
+        head, rule,
+        stats_row(f"most extreme {100 * sh['extreme_share']:.0f}% of shapes ({len(sh['extreme_shapes'])})", sh["extreme"]),
+        *(stats_row(f"  extreme, {k}", v) for k, v in sh["extreme"]["splits"].items()),
+        stats_row(f"the other shapes ({sh['count'] - len(sh['extreme_shapes'])})", sh["rest"]),
+        *(stats_row(f"  others, {k}", v) for k, v in sh["rest"]["splits"].items()), "",
+        "Extremeness: the L2 norm of the shape's parameters mapped so the base body is 0 and each end of the box +-1.", "",
+        "| shape | " + " | ".join(names) + " | extremeness | success % | pose success % | PHC success % | MPJPE mm | reward/step |",
+        "|---" * (7 + len(names)) + "|",
+    ]
+    for row in sh["per_shape"]:
+        lines.append(f"| {row['index']} | " + " | ".join(f"{row['params'][n]:.3f}" for n in names)
+                     + f" | {row['extremeness']:.2f} | {_f(row['success_pct'])} | {_f(row.get('pose_success_pct'))} "
+                       f"| {_f(row['phc_success_pct'])} | {_f(row['mpjpe_mm'])} | {_f(row['reward_per_step'], '.3f')} |")
+    return lines + [""]
 
 
 def label_level_table(level: str, groups: dict[str, dict[str, dict]]) -> list[str]:
@@ -289,6 +388,105 @@ def plot_styles(records: list[dict], path: Path, title: str = "") -> Path | None
     return eval_plots.save_figure(fig, path)
 
 
+MAP_PREFERENCES = (("leg_length", "scale"), ("height", "thickness"), ("global_z", "global_x"),
+                   ("upper_thickness", "lower_thickness"), ("left_leg", "right_leg"), ("leg_length", "arm_length"))
+"""Default axes of shape_map.png, the first pair the parameterization has (after the run's own
+sampler.plot_params): a body's size along one axis, its build or another limb along the other."""
+MAX_PANELS = 12
+"""shape_map.png shows at most this many classes (the ones with the most episodes) besides "all";
+the rest are merged into "other"."""
+
+
+def default_map_params(space: ParamSpace, plot_params: tuple[str, ...] = ()) -> tuple[str, ...]:
+    """The two parameters of shape_map.png: `plot_params` (the run's sampler.plot_params) when the
+    space has both, else the first of `MAP_PREFERENCES` it has, else its first two (one for a
+    one-parameter space: the map is then a strip along it)."""
+    names = tuple(space.names)
+    for pair in ((tuple(plot_params),) if len(plot_params) == 2 else ()) + MAP_PREFERENCES:
+        if all(p in names for p in pair):
+            return pair
+    return names[:2]
+
+
+def panel_of(label: str) -> str:
+    """The shape map's panel of a clip class: a labelled take's content (`root/bandai/<content>/...`),
+    else the label's top-level class (`root/locomotion/walk` -> locomotion)."""
+    cs = xe.content_and_style(label)
+    if cs is not None:
+        return cs[0]
+    parts = label.split("/")
+    return parts[1] if len(parts) > 1 and parts[0] == "root" else parts[0] or "root"
+
+
+def shape_map_grid(space: ParamSpace, records: list[dict], ij: tuple[int, int | None], bins: int) -> tuple[np.ndarray, np.ndarray]:
+    """(success % `[bins, bins']`, episodes per cell) of `records` binned over shape parameters i
+    (columns) and j (rows; None: one row), NaN where a cell has no episode."""
+    i, j = ij
+    params = np.array([r["shape"] for r in records])
+    ok = np.array([r["success"] for r in records], dtype=float)
+    col = np.clip(np.digitize(params[:, i], np.linspace(space.low[i], space.high[i], bins + 1)) - 1, 0, bins - 1)
+    rows = 1 if j is None else bins
+    row = np.zeros(len(params), int) if j is None else np.clip(
+        np.digitize(params[:, j], np.linspace(space.low[j], space.high[j], bins + 1)) - 1, 0, bins - 1)
+    total, count = np.zeros((rows, bins)), np.zeros((rows, bins))
+    np.add.at(total, (row, col), ok)
+    np.add.at(count, (row, col), 1)
+    with np.errstate(invalid="ignore"):
+        return np.where(count > 0, 100.0 * total / np.maximum(count, 1), np.nan), count
+
+
+def plot_shape_map(records: list[dict], space: ParamSpace, names: tuple[str, ...], path: Path, bins: int,
+                   title: str = "") -> dict[str, list]:
+    """shape_map.png: success % over two shape parameters (`names`, x then y), one panel for every
+    episode ("all") and one per class (`panel_of`; the `MAX_PANELS` largest, the rest "other"),
+    each cell the mean over its episodes (clips, starts, shapes in it), its episode count written
+    in it; empty cells blank; the base body marked +. Returns {panel: success grid (rows y, -1 empty)}."""
+    matplotlib.use("Agg")
+    i = list(space.names).index(names[0])
+    j = list(space.names).index(names[1]) if len(names) > 1 else None
+    groups: dict[str, list[dict]] = {}
+    for r in records:
+        groups.setdefault(panel_of(r["label"]), []).append(r)
+    order = sorted(groups, key=lambda k: (-len(groups[k]), k))
+    if len(order) > MAX_PANELS:
+        other = [r for k in order[MAX_PANELS - 1:] for r in groups[k]]
+        order = order[: MAX_PANELS - 1] + ["other"]
+        groups["other"] = other
+    panels = [("all", records)] + [(k, groups[k]) for k in order]
+    cols = min(4, len(panels))
+    nrows = -(-len(panels) // cols)
+    fig, axes = plt.subplots(nrows, cols, figsize=(3.2 * cols + 0.8, 2.9 * nrows + 0.6), dpi=110, squeeze=False)
+    extent = (space.low[i], space.high[i], *((space.low[j], space.high[j]) if j is not None else (0.0, 1.0)))
+    grids: dict[str, list] = {}
+    im = None
+    for ax, (name, rs) in zip(axes.flat, panels):
+        grid, count = shape_map_grid(space, rs, (i, j), bins)
+        grids[name] = np.where(np.isfinite(grid), grid, -1.0).round(1).tolist()
+        im = ax.imshow(grid, origin="lower", aspect="auto", cmap="viridis", vmin=0, vmax=100, extent=extent)
+        w = (extent[1] - extent[0]) / bins
+        h = (extent[3] - extent[2]) / grid.shape[0]
+        for (r_, c_), n in np.ndenumerate(count):
+            if n:
+                ax.text(extent[0] + (c_ + 0.5) * w, extent[2] + (r_ + 0.5) * h, f"{int(n)}", ha="center", va="center",
+                        fontsize=6, color="white" if grid[r_, c_] < 60 else "black")
+        base = space.default_array
+        ax.plot(base[i], base[j] if j is not None else 0.5, marker="+", color="red", markersize=9, mew=1.5)
+        ax.set_title(f"{name} ({len(rs)} episodes, {100 * np.mean([r['success'] for r in rs]):.0f}%)", fontsize=8)
+        ax.set_xlabel(space.names[i], fontsize=7)
+        ax.set_ylabel(space.names[j] if j is not None else "", fontsize=7)
+        ax.tick_params(labelsize=6)
+        if j is None:
+            ax.set_yticks([])
+    for ax in list(axes.flat)[len(panels):]:
+        ax.axis("off")
+    fig.colorbar(im, ax=axes, shrink=0.7, label="success % (cell: episodes)")
+    fig.suptitle(title, fontsize=9)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+    return grids
+
+
 class _CameraView:
     """What `eval_plots.Recorder` reads of an environment, for the executor's humanoid."""
 
@@ -301,14 +499,15 @@ class _CameraView:
     character = property(lambda self: self._env.character)
 
 
-def render_clip(loaded: checkpoint.Loaded, clip: xe.EvalClip, start_s: float, out: Path, stem: str, gif: bool) -> list[str]:
-    """Strip (and GIF) of one evaluation episode."""
+def render_clip(loaded: checkpoint.Loaded, clip: xe.EvalClip, start_s: float, out: Path, stem: str, gif: bool,
+                shape: list[float] | None = None) -> list[str]:
+    """Strip (and GIF) of one evaluation episode (on body `shape`: the clip's first shape with --shapes)."""
 
-    env = xe.make_eval_env(loaded, [clip])
+    env = xe.make_eval_env(loaded, [clip], shapes=shape is not None)
     policy = checkpoint.make_policy(loaded, env.obs_dim, env.act_dim)
     rec = eval_plots.Recorder(every=3 if gif else 6)
     xe.run_episode(env, policy, clip.clip_id, start_s, loaded.cfg.task.executor.termination, seed=0,
-                   on_step=lambda e, k: rec(_CameraView(e), k))
+                   on_step=lambda e, k: rec(_CameraView(e), k), params=None if shape is None else np.array(shape))
     rec(_CameraView(env), 0)
     rec.close()
     written = [rec.write_strip(out / f"{stem}.png")]
@@ -329,18 +528,28 @@ def best_and_worst(summary: dict) -> tuple[str, str]:
 
 def evaluate_checkpoint(loaded: checkpoint.Loaded, clips: list[xe.EvalClip], starts: int, workers: int, out: Path,
                         render: bool = False, gif: bool = False, log: str = "evaluate", zero_action: bool = False,
-                        settings: list[str] | None = None) -> dict[str, Any]:
+                        settings: list[str] | None = None, shapes: int = 0, seed: int = xe.SHAPE_SEED,
+                        map_params: tuple[str, ...] = (), bins: int = 4) -> dict[str, Any]:
     """Run the evaluation and write results.json, summary.md, clips.png (and the strips);
     returns {"meta", "summary", "episodes", "files"}. `zero_action`: the zero-action baseline
     in the checkpoint's task instead of its policy (no strips: they film the policy). `settings`:
-    the `--set` pairs already applied to `loaded` (`xe.with_settings`), recorded in the files."""
+    the `--set` pairs already applied to `loaded` (`xe.with_settings`), recorded in the files.
+    `shapes` N > 0: every episode on each of N shapes (`xe.eval_shapes(cfg, N, seed)`), the
+    summary per shape too, and shape_map.png over `map_params` (`default_map_params`) with `bins`."""
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
-    with Progress(f"[{log}] {loaded.name}", len(clips) * starts, "episodes") as bar:
+    space = xe.shape_space(loaded.cfg.task) if shapes else None
+    names = (tuple(map_params) or default_map_params(space, tuple(loaded.cfg.sampler.plot_params))) if shapes else ()
+    bad = [n for n in names if n not in space.names] if shapes else []
+    if bad or (shapes and len(set(names)) != len(names)):
+        raise ValueError(f"--map-params {' '.join(map_params)}: give two different parameters of "
+                         f"{', '.join(space.names)}")
+    drawn = xe.eval_shapes(loaded.cfg.task, shapes, seed) if shapes else None
+    with Progress(f"[{log}] {loaded.name}", len(clips) * starts * max(shapes, 1), "episodes") as bar:
         records = xe.evaluate(loaded, clips, starts, workers, progress=lambda done, total: bar.set(done, total),
-                              zero_action=zero_action)
-    summary = xe.summarize(records, clips)
-    summary["zero_action_ceiling"] = xe.zero_action_ceiling(loaded, clips, starts, workers, records)
+                              zero_action=zero_action, shapes=drawn)
+    summary = xe.summarize(records, clips, space)
+    summary["zero_action_ceiling"] = xe.zero_action_ceiling(loaded, clips, starts, workers, records, shapes=drawn)
     meta = {"checkpoint": str(loaded.path), "name": loaded.name, "task": "executor",
             "iteration": int(loaded.state.get("iteration", 0)), "env_steps": int(loaded.state.get("env_steps", 0)),
             "training": describe(loaded.cfg), "termination": loaded.cfg.task.executor.termination,
@@ -348,17 +557,30 @@ def evaluate_checkpoint(loaded: checkpoint.Loaded, clips: list[xe.EvalClip], sta
             "phc_threshold_m": xe.PHC_THRESHOLD_M, "clips": [c.clip_id for c in clips],
             "sources": {c.clip_id: c.source for c in clips if c.source}, "wall_s": time.monotonic() - t0,
             "actions": "zero" if zero_action else "mean", "settings": list(settings or [])}
+    if shapes:
+        meta.update(shapes=shapes, shape_seed=seed, shape_names=list(space.names), map_params=list(names),
+                    parameterization=loaded.cfg.task.body.parameterization, trained_on_shapes=loaded.cfg.task.body.vary_shape,
+                    shape_params=drawn.tolist())
     result = {"meta": meta, "summary": summary, "episodes": records}
     (out / "results.json").write_text(json.dumps(result, indent=1) + "\n")
     files = [str(out / "results.json"), str(plot_clips(summary, out / "clips.png",
-                                                       f"{loaded.name}: success per clip ({starts} starts each)"))]
+                                                       f"{loaded.name}: success per clip ({starts} starts each"
+                                                       f"{f' on {shapes} shapes' if shapes else ''})"))]
+    if shapes:
+        summary["shapes"]["map"] = plot_shape_map(
+            records, space, names, out / "shape_map.png", bins,
+            f"{loaded.name}: success over {' x '.join(names)} ({shapes} shapes, seed {seed}"
+            f"{'' if loaded.cfg.task.body.vary_shape else '; zero-shot: trained on the base body'})")
+        files.append(str(out / "shape_map.png"))
+        (out / "results.json").write_text(json.dumps(result, indent=1) + "\n")
     styles_png = plot_styles(records, out / "styles.png", f"{loaded.name}: success by content x style ({starts} starts per take)")
     files += [str(styles_png)] if styles_png else []
     if render and not zero_action:
         best, worst = best_and_worst(summary)
         by_id = {c.clip_id: c for c in clips}
         for stem, cid in (("best", best), ("worst", worst)):
-            files += render_clip(loaded, by_id[cid], 0.0, out, stem, gif)
+            first = None if drawn is None else next(r["shape"] for r in records if r["clip_id"] == cid)
+            files += render_clip(loaded, by_id[cid], 0.0, out, stem, gif, first)
         meta.update(best_clip=best, worst_clip=worst)
         (out / "results.json").write_text(json.dumps(result, indent=1) + "\n")
     files.append(str(out / "summary.md"))
@@ -373,25 +595,71 @@ def line(name: str, group: str, s: dict) -> str:
             f"{s['clips']} clips x {s['episodes'] // max(s['clips'], 1)} starts")
 
 
+def run_morph(args: ReportOptions, loaded: checkpoint.Loaded) -> int:
+    """`--morph`: the body changes while the executor tracks one clip (`morph.py`)."""
+    from learner.evaluation.executor import morph
+
+    ignored = harness.changed_flags(args, NOT_MORPH, {"render": "--no-render", "settings": "--set"})
+    if ignored:
+        refuse(PROG, f"{', '.join(ignored)}: not options of --morph (it takes --clips CLIP, --strength, --schedule, "
+                     "--every, --gif, --out)")
+    if len(args.clips) > 1:
+        refuse(PROG, f"--morph tracks one clip; --clips names {len(args.clips)}")
+    clip = select_clips(PROG, args.clips, loaded)[0].clip_id if args.clips else morph.DEFAULT_CLIP
+    if clip.startswith("imported/"):
+        refuse(PROG, f"--morph: {args.clips[0]} is a file; name a clip id of the humanoid's library")
+    out = Path(args.out) if args.out else loaded.path.parent / "morph"
+    try:
+        result = morph.run(loaded, clip, out, list(args.schedule) or None, args.strength, args.every, args.gif)
+    except ValueError as exc:
+        refuse(PROG, str(exc))
+    m, b = result["morph"], result["base_body"]
+    zero = "" if loaded.cfg.task.body.vary_shape else " (zero-shot: trained on the base body)"
+    print(f"[morph] {loaded.name}{zero} on {clip}: {m['morphs']} body changes over {m['seconds']:.1f} s; morphing: "
+          f"{morph.describe(m)}; base body: {morph.describe(b)}; wrote {', '.join(result['files'])}")
+    return 0
+
+
 def main(argv: list[str]) -> int:
     args = parse_options(ReportOptions, argv, prog=PROG, description=__doc__)
     loaded = checkpoint.load_trained(args.checkpoint)
     if loaded.cfg.task.name != "executor":
         refuse(PROG, f"--checkpoint {args.checkpoint}: task {loaded.cfg.task.name!r} is not the executor; "
                      f"{', '.join(EXECUTOR_ONLY_OPTIONS)} are executor options")
+    if args.morph:
+        return run_morph(args, loaded)
+    misplaced = harness.changed_flags(args, MORPH_ONLY) + ([] if args.shapes else harness.changed_flags(args, SHAPES_ONLY))
+    if misplaced:
+        refuse(PROG, f"{', '.join(misplaced)}: {'--morph' if set(misplaced) & {'--strength', '--schedule', '--every'} else '--shapes N'} "
+                     "options: give them with it")
     try:
         loaded = xe.with_settings(loaded, list(args.settings))
     except ValueError as exc:
         refuse(PROG, str(exc))
     clips = select_clips(PROG, args.clips, loaded)
-    out = Path(args.out) if args.out else loaded.path.parent / ("eval_clips_zero_action" if args.zero_action else "eval_clips")
+    if args.shapes:
+        space = xe.shape_space(loaded.cfg.task)
+        names = tuple(args.map_params)
+        if names and (len(set(names)) != 2 or any(n not in space.names for n in names)):
+            refuse(PROG, f"--map-params {' '.join(names)}: give two different shape parameters of "
+                         f"{loaded.cfg.task.body.parameterization}: {', '.join(space.names)}")
+    default_out = "eval_shapes" if args.shapes else "eval_clips"
+    out = Path(args.out) if args.out else loaded.path.parent / (default_out + ("_zero_action" if args.zero_action else ""))
     result = evaluate_checkpoint(loaded, clips, args.starts, args.workers, out, render=args.render, gif=args.gif,
-                                 zero_action=args.zero_action, settings=list(args.settings))
+                                 zero_action=args.zero_action, settings=list(args.settings), shapes=args.shapes,
+                                 seed=args.seed, map_params=tuple(args.map_params), bins=args.bins)
     s = result["summary"]
     name = f"{loaded.name} (zero action)" if args.zero_action else loaded.name
     for group, stats in s["splits"].items():
         print(line(name, group, stats))
     print(line(name, "all", s["overall"]) + f"; wrote {out}")
+    if s.get("shapes"):
+        sh = s["shapes"]
+        print(f"[evaluate] {name} over {sh['count']} shapes (seed {args.seed}"
+              f"{'' if loaded.cfg.task.body.vary_shape else ', zero-shot'}): per-shape success min/median/max "
+              f"{sh['success_pct']['min']:.1f}/{sh['success_pct']['median']:.1f}/{sh['success_pct']['max']:.1f}%, "
+              f"most extreme {100 * sh['extreme_share']:.0f}% of shapes {_f(sh['extreme']['success_pct'])}% "
+              f"against {_f(sh['rest']['success_pct'])}% on the others")
     c = s["zero_action_ceiling"]
     print(f"[evaluate] {name} zero-action ceiling: {c['failed']} of {c['episodes']} starts fail within {c['steps']} "
           f"steps with zero actions (pose: {c['pose_failed']}); ceiling {_f(c['ceiling_pct'])}% "

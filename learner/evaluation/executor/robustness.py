@@ -1,6 +1,7 @@
 """`morphmimic robustness --checkpoint X`: UniCon's zero-shot robustness tests (Table 2, METHOD.md
 B "Evaluation") on one checkpoint: the reference played slower or faster, projectiles thrown at
-the character, a heavier and a lighter body, none of which the policy saw in training.
+the character, a heavier and a lighter body, none of which the policy saw in training; and one
+row more than Table 2, "shape": the same episodes on random body shapes (issue 55 item 3).
 
     morphmimic robustness --checkpoint runs/executor                         # train-split clips, 3 starts each
     morphmimic robustness --checkpoint runs/executor --clips humanoid3d_cartwheel --starts 10   # the paper's clip
@@ -18,6 +19,10 @@ length. UniCon measures with "the reward" too. Also reported per row: success %.
 Executor: episodes on the `--clips` (default: the clips the checkpoint trained on) from
 `--starts` frames each, exactly as `morphmimic evaluate` runs them (`learner/evaluation/executor/evaluate.py`);
 success = tracked to the clip's end with no reward term below alpha.
+The executor's shape row: `--shapes` (default 10) shapes drawn uniformly from the box of the
+checkpoint's parameterization with `--seed`, every (clip, start) on each, run as `morphmimic
+evaluate --shapes` runs them (the body built per episode, the clip retargeted onto it); a
+checkpoint trained on the base body only meets them zero-shot.
 Shape controllers (Won & Lee walkers and swimmers): `--shapes` random shapes (fixed `--seed`),
 `--episode-s` episodes; success = did not fall. Mass rows apply to every one; speed rows only to
 a checkpoint trained with the "speed" task parameter (its playback speed is an observed episode
@@ -76,7 +81,11 @@ UNICON_TABLE2 = {
     "mass": {"heavy": (77.9, 65.7), "light": (98.2, 33.5)},
 }
 """UniCon 2020 Table 2: relative performance (%) on a cartwheel clip, (UniCon, DeepMimic)."""
-GROUPS = ("speed", "projectile", "mass")
+GROUPS = ("speed", "projectile", "mass", "shape")
+"""Row groups: Table 2's three, and the body's shape (issue 55 item 3)."""
+EXECUTOR_SHAPES = 10
+"""The executor's shape row: random shapes, each running every (clip, start) of the other rows."""
+SHAPE_SEED = 2019
 PROJECTILE_SPEED_MPS = 10.0
 PROJECTILE_DISTANCE_M = 2.0
 
@@ -94,12 +103,14 @@ class Row:
     def x(self) -> float:
         """The row's value on its plot axis: speed factor, throw interval (steps), mass factor."""
         p = self.perturbation
-        return {"speed": p.speed, "projectile": float(p.projectile_every), "mass": p.mass}[self.group]
+        return {"speed": p.speed, "projectile": float(p.projectile_every), "mass": p.mass, "shape": float(p.shapes)}[self.group]
 
 
 def rows_for(groups: tuple[str, ...], projectile_speed: float = PROJECTILE_SPEED_MPS,
-             projectile_distance: float = PROJECTILE_DISTANCE_M) -> list[Row]:
-    """Table 2's rows of the chosen groups, in the paper's order within each group."""
+             projectile_distance: float = PROJECTILE_DISTANCE_M, shapes: int = EXECUTOR_SHAPES,
+             seed: int = SHAPE_SEED) -> list[Row]:
+    """Table 2's rows of the chosen groups, in the paper's order within each group; the "shape"
+    group (not in Table 2): one row, the same episodes on `shapes` random body shapes (`seed`)."""
     out: list[Row] = []
     if "speed" in groups:
         out += [Row("speed", f"speed x{s:g}", xe.Perturbation(speed=s), UNICON_TABLE2["speed"][s]) for s in SPEEDS]
@@ -109,11 +120,13 @@ def rows_for(groups: tuple[str, ...], projectile_speed: float = PROJECTILE_SPEED
             UNICON_TABLE2["projectile"][n]) for n in PROJECTILE_EVERY]
     if "mass" in groups:
         out += [Row("mass", f"{k} x{m:g}", xe.Perturbation(mass=m), UNICON_TABLE2["mass"][k]) for k, m in MASSES.items()]
+    if "shape" in groups:
+        out.append(Row("shape", f"{shapes} random shapes (seed {seed})", xe.Perturbation(shapes=shapes, shape_seed=seed)))
     return out
 
 
 def row_groups(text: str) -> tuple[str, ...]:
-    """`--rows`: a comma-separated subset of speed, projectile, mass, in that order; ValueError
+    """`--rows`: a comma-separated subset of speed, projectile, mass, shape, in that order; ValueError
     naming `text` otherwise."""
     parts = tuple(p.strip() for p in text.split(",") if p.strip())
     bad = [p for p in parts if p not in GROUPS]
@@ -124,7 +137,8 @@ def row_groups(text: str) -> tuple[str, ...]:
 
 PROG = "morphmimic robustness"
 EXECUTOR_ONLY = ("clips", "starts", "projectile_speed", "projectile_distance", "settings")
-SHAPE_ONLY = ("shapes", "episode_s", "seed")
+SHAPE_ONLY = ("episode_s",)
+SHAPE_CONTROLLER_SHAPES = 20
 
 
 @validated
@@ -132,7 +146,7 @@ SHAPE_ONLY = ("shapes", "episode_s", "seed")
 class RobustnessOptions:
     checkpoint: str
     """Checkpoint dir, state.pt, run dir or learner/pretrained/<name>."""
-    rows: Annotated[tuple[str, ...], harness.one_value(row_groups, "speed,projectile,mass", ",".join)] = GROUPS
+    rows: Annotated[tuple[str, ...], harness.one_value(row_groups, "speed,projectile,mass,shape", ",".join)] = GROUPS
     """Groups of rows."""
     clips: Clips = ()
     """Executor: clip ids, files or folders of .npz clips (default: the clips it trained on)."""
@@ -142,12 +156,12 @@ class RobustnessOptions:
     """Executor: launch speed of the projectile, m/s."""
     projectile_distance: float = PROJECTILE_DISTANCE_M
     """Executor: horizontal distance from the root the projectile is launched from, m."""
-    shapes: int = 20
-    """Shape controllers: random shapes."""
+    shapes: int | None = None
+    """Shape controllers: random shapes (default 20); the executor: random shapes of its "shape" row (default 10)."""
     episode_s: float = 10.0
     """Shape controllers: episode length, s."""
-    seed: int = 2019
-    """Shape controllers: seed of the shape draws."""
+    seed: int = SHAPE_SEED
+    """Seed of the shape draws (shape controllers' episodes, the executor's "shape" row)."""
     workers: int = 1
     """Processes running episodes."""
     settings: Settings = ()
@@ -200,12 +214,17 @@ def executor_rows(loaded: checkpoint.Loaded, clips: list[xe.EvalClip], starts: i
 
     def measure(name: str, pert: xe.Perturbation, progress=None) -> dict[str, Any]:
         t0 = time.monotonic()
-        records = xe.evaluate(loaded, clips, starts, workers, pert, progress=progress, durations=durations)
+        shapes = xe.eval_shapes(loaded.cfg.task, pert.shapes, pert.shape_seed) if pert.shapes else None
+        records = xe.evaluate(loaded, clips, starts, workers, pert, progress=progress, durations=durations, shapes=shapes)
         s = xe.stats(records)
-        return {"row": name, "stats": s, "performance": s["performance"], "success_pct": s["success_pct"],
-                "mean_return": s["mean_return"], "seconds": time.monotonic() - t0,
-                "episodes": [{k: r[k] for k in ("clip_id", "start_s", "return", "planned_steps", "success")}
-                             for r in records]}
+        out = {"row": name, "stats": s, "performance": s["performance"], "success_pct": s["success_pct"],
+               "mean_return": s["mean_return"], "seconds": time.monotonic() - t0,
+               "episodes": [{k: r[k] for k in ("clip_id", "start_s", "return", "planned_steps", "success", "shape_index")
+                             if k in r} for r in records]}
+        if shapes is not None:
+            out["shapes"] = {"names": list(xe.shape_space(loaded.cfg.task).names), "seed": pert.shape_seed,
+                             "params": shapes.tolist()}
+        return out
 
     problem = projectile_problem(loaded, clips[0]) if any(r.group == "projectile" for r in rows) else None
 
@@ -306,6 +325,8 @@ def shape_rows(loaded: checkpoint.Loaded, shapes: int, episode_s: float, seed: i
     def skip(row: Row) -> str | None:
         if row.group == "projectile":
             return f"task {loaded.cfg.task.name!r} has no projectile body (the executor's robustness hook)"
+        if row.group == "shape":
+            return "a shape controller's episodes are already on random shapes (every row above is)"
         if row.group == "speed" and "speed" not in loaded.cfg.task.imitate.task_params:
             return ("trained without the 'speed' task parameter: a shape task plays its reference at another "
                     "speed only through that parameter, which is part of the observation, so this policy cannot take it")
@@ -325,9 +346,17 @@ def _run_rows(rows: list[Row], measure, skip, log=None) -> tuple[dict, list[dict
         say = log or bar.write
 
         def progress(k: int):
-            return lambda done, total: bar.set(k * total + done, measured * total)
+            # NOTE: a shape row runs its episodes on each shape: counted as one row's share of the bar
+            return lambda done, total: bar.set(k * measured_total[0] + done * measured_total[0] // max(total, 1),
+                                               measured * measured_total[0])
 
-        base = measure("unperturbed", xe.Perturbation(), progress(0))
+        measured_total = [1]
+
+        def base_progress(done: int, total: int) -> None:
+            measured_total[0] = total
+            bar.set(done, measured * total)
+
+        base = measure("unperturbed", xe.Perturbation(), base_progress)
         say(_line(base, base))
         out, k = [], 1
         for row, reason in zip(rows, reasons):
@@ -373,13 +402,16 @@ def main(argv: list[str]) -> int:
     if given:
         refuse(PROG, f"{', '.join(given)}: not options for task {loaded.cfg.task.name!r} "
                      f"({'executor' if executor else 'shape controller'} checkpoints take "
-                     f"{'--clips, --starts, --projectile-speed, --projectile-distance, --set' if executor else '--shapes, --episode-s, --seed'})")
+                     f"{'--clips, --starts, --projectile-speed, --projectile-distance, --set, --shapes and --seed (its shape row)' if executor else '--shapes, --episode-s, --seed'})")
+    if executor and "shape" not in args.rows and (args.shapes is not None or args.seed != SHAPE_SEED):
+        refuse(PROG, f"--shapes, --seed: the executor's shape row's options; --rows {','.join(args.rows)} has no shape row")
     if executor:
         try:
             loaded = xe.with_settings(loaded, list(args.settings))
         except ValueError as exc:
             refuse(PROG, str(exc))
-    rows = rows_for(args.rows, args.projectile_speed, args.projectile_distance)
+    rows = rows_for(args.rows, args.projectile_speed, args.projectile_distance,
+                    args.shapes or EXECUTOR_SHAPES, args.seed)
     out = Path(args.out) if args.out else loaded.path.parent / "robustness"
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
@@ -390,9 +422,16 @@ def main(argv: list[str]) -> int:
         base, results = executor_rows(loaded, clips, args.starts, args.workers, rows)
         protocol = {"clips": [c.clip_id for c in clips], "starts": args.starts, "settings": list(args.settings), "projectile": {
             **robustness_report.projectile_spec(), "speed_mps": args.projectile_speed, "distance_m": args.projectile_distance}}
+        if "shape" in args.rows:
+            space = xe.shape_space(loaded.cfg.task)
+            protocol["shape"] = {"shapes": args.shapes or EXECUTOR_SHAPES, "seed": args.seed,
+                                 "parameterization": loaded.cfg.task.body.parameterization,
+                                 "box": {n: [lo, hi] for n, lo, hi in zip(space.names, space.low, space.high)},
+                                 "trained_on_shapes": loaded.cfg.task.body.vary_shape}
     else:
-        base, results = shape_rows(loaded, args.shapes, args.episode_s, args.seed, args.workers, rows)
-        protocol = {"shapes": args.shapes, "episode_s": args.episode_s, "seed": args.seed}
+        shapes = args.shapes or SHAPE_CONTROLLER_SHAPES
+        base, results = shape_rows(loaded, shapes, args.episode_s, args.seed, args.workers, rows)
+        protocol = {"shapes": shapes, "episode_s": args.episode_s, "seed": args.seed}
     files = robustness_report.write(loaded, base, results, protocol, out, time.monotonic() - t0)
     print(f"[robustness] {loaded.name}: wrote {', '.join(Path(f).name for f in files)} to {out}")
     return 0

@@ -79,6 +79,16 @@ def markdown(loaded: checkpoint.Loaded, base: dict, results: list[dict], protoco
         lines += ["**The projectile**: a ball of {:g} kg and {:g} cm radius, launched at {:g} m/s from {:g} m away, aimed "
                   "{}; {}. UniCon gives no size, mass or speed.".format(
                       pj["mass_kg"], 100 * pj["radius_m"], pj["speed_mps"], pj["distance_m"], pj["aim"], pj["schedule"]), ""]
+    if executor and "shape" in protocol:
+        sh = protocol["shape"]
+        box = ", ".join(f"{n} [{lo:g}, {hi:g}]" for n, (lo, hi) in sh["box"].items())
+        lines += [f"**The shape row** (not in Table 2): the same (clip, start) episodes, each on {sh['shapes']} body shapes "
+                  f"drawn uniformly (seed {sh['seed']}) from the whole box of parameterization `{sh['parameterization']}` "
+                  f"({box}); each body built for its episode and the clip retargeted onto it, the position terms "
+                  "normalized by the body's size (`morphmimic evaluate --shapes`'s protocol); relative to the "
+                  "unperturbed base body. "
+                  + ("The checkpoint trained over these shapes." if sh["trained_on_shapes"] else
+                     "The checkpoint trained on the base body only: zero-shot."), ""]
     if loaded.cfg.task.name == "executor":
         lines += ["Mass rows scale every body's mass and inertia, and what MuJoCo derives from them "
                   "(`ExecutorEnv.scale_mass`); the effort factors and PD gains stay those of the trained body. Speed rows play the targets at that speed (`ExecutorConfig.speed`).", ""]

@@ -275,6 +275,25 @@ class DatasetScheduler:
             self.begin(rng, self.clip_id, t, align_to=qpos)
         return True
 
+    def body_changed(self) -> None:
+        """The character's body changed mid-schedule (`ExecutorEnv.set_shape`): re-read the clip
+        from `motion` (now the clip on the new body) and resample every row sampled so far,
+        keeping the clip, its time, the step and the placement's heading, the placement moved
+        horizontally so the target root now is where the old one was (a clip retargeted onto
+        longer legs strides farther: without the move the target would jump ahead by the
+        difference of the strides walked so far)."""
+        if not self.clip_id:
+            return
+        old_root = self.frame(0).qpos[0:3].copy()
+        self._motion = self.motion(self.clip_id)
+        q, v = self._sample(0, len(self._q))
+        self._q, self._v = place(q, v, self._yaw, self._shift)
+        move = old_root - self.frame(0).qpos[0:3]
+        move[2] = 0.0
+        self._shift = self._shift + move
+        self._q[:, 0:3] += move
+        self._kin, self._kin_lo, self._kin_hi = None, 0, 0
+
     @property
     def done(self) -> bool:
         return self._done

@@ -297,6 +297,26 @@ class KeyboardScheduler:
         self._run_script()
         return False
 
+    def body_changed(self) -> None:
+        """The character's body changed (`ExecutorEnv.set_shape`): the style cycles are rebuilt
+        from `motion` (now the clips on the new body) and the generator goes on from its state
+        (position, heading, speed factor, commands), its rows wrapped into the new cycles and
+        its past and future recomputed on them (the root speed follows the new body's stride)."""
+        self._cycles.clear()
+        if self._state is None:
+            return
+        st = self._state
+        rows = {"row": st.row % self._cycle(st.style).n}
+        if st.prev_style is not None:
+            rows["prev_row"] = st.prev_row % self._cycle(st.prev_style).n
+        self._state = replace(st, **rows)
+        self._past.clear()
+        back = self._state
+        for _ in range(self.lookback + 2):
+            back = self._back(back)
+            self._past.append(self._pose(back))
+        self._invalidate()
+
     @property
     def done(self) -> bool:
         return False

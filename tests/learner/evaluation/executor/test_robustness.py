@@ -21,7 +21,9 @@ def test_rows_are_unicon_table_2() -> None:
     assert [int(r.x) for r in rows if r.group == "projectile"] == [1, 5, 10, 20, 30, 40, 50, 60, 70, 80]
     assert [(r.name, r.paper) for r in rows if r.group == "mass"] == [("heavy x1.25", (77.9, 65.7)),
                                                                       ("light x0.75", (98.2, 33.5))]
-    assert all(r.paper is not None and not r.perturbation.is_identity for r in rows)
+    assert all(r.paper is not None and not r.perturbation.is_identity for r in rows if r.group != "shape")
+    (shape,) = [r for r in rows if r.group == "shape"]  # one row more than Table 2: no paper figure
+    assert shape.paper is None and shape.perturbation.shapes == robustness.EXECUTOR_SHAPES and shape.x == 10.0
     assert robustness.row_groups("mass, speed") == ("speed", "mass")
 
 
@@ -95,8 +97,11 @@ def test_bad_options_are_usage_errors_naming_the_value(flag, bad, says, capsys) 
 def test_options_of_the_other_kind_of_checkpoint_are_refused(tmp_path: Path, capsys) -> None:
     run = tiny_executor(tmp_path)
     with pytest.raises(SystemExit) as exc:
-        robustness.main(["--checkpoint", str(run), "--shapes", "5"])
-    assert exc.value.code == 2 and "--shapes: not options for task 'executor'" in capsys.readouterr().err
+        robustness.main(["--checkpoint", str(run), "--episode-s", "5"])
+    assert exc.value.code == 2 and "--episode-s: not options for task 'executor'" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:  # the executor's --shapes is its shape row's
+        robustness.main(["--checkpoint", str(run), "--shapes", "5", "--rows", "mass"])
+    assert exc.value.code == 2 and "--shapes, --seed: the executor's shape row" in capsys.readouterr().err
     fish = Path(__file__).resolve().parents[4] / "learner/pretrained/fish"
     with pytest.raises(SystemExit) as exc:
         robustness.main(["--checkpoint", str(fish), "--set", "ankle_armature=0.1"])
