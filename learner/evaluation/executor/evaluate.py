@@ -52,6 +52,7 @@ from common.tasks.executor.env import CHARACTER, ExecutorEnv, humanoid_clips, la
 from common.tasks.registry import make_env
 from learner.config import RunConfig, _from_dict
 from learner.evaluation import harness
+from learner.evaluation.shape.episodes import extremeness
 from learner import checkpoint
 
 PHC_THRESHOLD_M = 0.5
@@ -245,15 +246,6 @@ def eval_shapes(cfg: TaskConfig, n: int, seed: int = SHAPE_SEED) -> np.ndarray:
     if n < 1:
         raise ValueError(f"shapes = {n} must be >= 1")
     return shape_space(cfg).uniform(np.random.default_rng(seed), n)
-
-
-def extremeness(space: ParamSpace, shapes: np.ndarray) -> np.ndarray:
-    """`[n]` how far each shape is from the base body: the L2 norm of its parameters mapped so
-    that the base value is 0 and each end of the box is +-1 (one scale per side; the shape
-    controllers' measure, `learner.evaluation.shape.episodes.extremeness`)."""
-    from learner.evaluation.shape.episodes import extremeness as shape_extremeness
-
-    return shape_extremeness(space, shapes)
 
 
 SETTABLE = ("ankle_armature", "arm_armature", "pd_velocity_target", "pd_action_scale", "effort_scale", "passive_damping",

@@ -34,7 +34,9 @@ import numpy as np
 from common.tasks.registry import make_env
 from learner import checkpoint
 from learner.evaluation.executor import evaluate as xe
+from learner.evaluation.executor.camera import CameraView
 from learner.evaluation.shape import morph_demo
+from learner.evaluation.shape import plots as eval_plots
 
 SCHEDULES = {
     "height_thickness": [(0.0, {}), (1.0, {}), (3.0, {"height": 1.4}), (4.0, {"height": 1.4}), (6.0, {"height": 0.8}),
@@ -107,11 +109,8 @@ def run_morph(loaded: checkpoint.Loaded, clip_id: str = DEFAULT_CLIP, schedule=N
 def run(loaded: checkpoint.Loaded, clip_id: str, out: Path, schedule=None, strength: float = 1.0, every: int = 1,
         gif: bool = False, seed: int = 0) -> dict[str, Any]:
     """The morph episode and its base-body twin; writes morph.json, morph.png (and morph.gif)."""
-    from learner.evaluation.executor.report import _CameraView
-    from learner.evaluation.shape import plots as eval_plots
-
     rec = eval_plots.Recorder(every=3 if gif else 15)
-    morphed = run_morph(loaded, clip_id, schedule, strength, every, seed, lambda e, k: rec(_CameraView(e), k))
+    morphed = run_morph(loaded, clip_id, schedule, strength, every, seed, lambda e, k: rec(CameraView(e), k))
     rec.close()
     fixed = run_morph(loaded, clip_id, schedule, strength, every, seed, morph=False)
     out.mkdir(parents=True, exist_ok=True)

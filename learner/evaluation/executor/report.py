@@ -57,6 +57,8 @@ from learner.evaluation.shape import morph_demo
 from learner.evaluation.shape import plots as eval_plots
 
 from learner.evaluation.executor import evaluate as xe
+from learner.evaluation.executor import morph
+from learner.evaluation.executor.camera import CameraView
 from learner.progress import Progress
 
 ZERO_NOTE = ("**zero actions, not the policy** (`--zero-action`: for PD targets the humanoid's PD on the reference "
@@ -487,18 +489,6 @@ def plot_shape_map(records: list[dict], space: ParamSpace, names: tuple[str, ...
     return grids
 
 
-class _CameraView:
-    """What `eval_plots.Recorder` reads of an environment, for the executor's humanoid."""
-
-    def __init__(self, env):
-        self._env = env
-        self.root_body = 1
-
-    model = property(lambda self: self._env.model)
-    data = property(lambda self: self._env.data)
-    character = property(lambda self: self._env.character)
-
-
 def render_clip(loaded: checkpoint.Loaded, clip: xe.EvalClip, start_s: float, out: Path, stem: str, gif: bool,
                 shape: list[float] | None = None) -> list[str]:
     """Strip (and GIF) of one evaluation episode (on body `shape`: the clip's first shape with --shapes)."""
@@ -507,8 +497,8 @@ def render_clip(loaded: checkpoint.Loaded, clip: xe.EvalClip, start_s: float, ou
     policy = checkpoint.make_policy(loaded, env.obs_dim, env.act_dim)
     rec = eval_plots.Recorder(every=3 if gif else 6)
     xe.run_episode(env, policy, clip.clip_id, start_s, loaded.cfg.task.executor.termination, seed=0,
-                   on_step=lambda e, k: rec(_CameraView(e), k), params=None if shape is None else np.array(shape))
-    rec(_CameraView(env), 0)
+                   on_step=lambda e, k: rec(CameraView(e), k), params=None if shape is None else np.array(shape))
+    rec(CameraView(env), 0)
     rec.close()
     written = [rec.write_strip(out / f"{stem}.png")]
     if gif:
@@ -597,8 +587,6 @@ def line(name: str, group: str, s: dict) -> str:
 
 def run_morph(args: ReportOptions, loaded: checkpoint.Loaded) -> int:
     """`--morph`: the body changes while the executor tracks one clip (`morph.py`)."""
-    from learner.evaluation.executor import morph
-
     ignored = harness.changed_flags(args, NOT_MORPH, {"render": "--no-render", "settings": "--set"})
     if ignored:
         refuse(PROG, f"{', '.join(ignored)}: not options of --morph (it takes --clips CLIP, --strength, --schedule, "
