@@ -33,7 +33,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "keypoints": ("learner.live.keypoints", "convert keypoints of another layout (MJCF keyframe mpos, .npy/.npz) to the video scheduler's joints"),
     "send-poses": ("learner.live.pose_sender", "send a clip's joint positions over UDP to the video scheduler (morphmimic play --scheduler video)"),
     "local-cluster": ("learner.commands.local_cluster", "a Ray head and two worker nodes on this machine, to train on with --mode cluster"),
-    "bench": ("learner.bench.cli", "benchmarks: throughput, learner, scaling, capacity, replicas, characters, episodes, env-steps, sampler, soak, curve"),
+    "bench": ("learner.bench.cli", "benchmarks: throughput, learner, scaling, capacity, replicas, characters, episodes, env-steps, shape-references, sampler, soak, curve"),
 }
 
 

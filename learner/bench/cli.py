@@ -11,6 +11,7 @@ BENCHMARKS: dict[str, tuple[str, str]] = {
     "characters": ("learner.bench.characters", "build/compile per shape, on-the-fly change, sim cost per control step"),
     "episodes": ("learner.bench.episodes", "per shape task: reset on a new body vs a control step, and the resets' share"),
     "env-steps": ("learner.bench.env_steps", "a control step in this tree vs another git revision, and whether both compute the same"),
+    "shape-references": ("learner.bench.shape_references", "executor-shape: a reset's reference retargeted whole vs frames made on demand"),
     "shape-batch": ("learner.bench.shape_batch", "a shape task's step as one batch vs its single environments vs pure physics"),
     "sampler": ("learner.bench.sampler", "MCMC refill time vs a policy iteration, draw latency through the socket"),
     "soak": ("learner.bench.soak", "train under every fault kind, then clean: survived, losses uncounted, return"),

@@ -12,7 +12,10 @@ shaped humanoids (METHOD.md A), each clip of the library retargeted onto each dr
   recorded and low-pass filtered by `ExecutorConfig.reference_filter_hz`), retargeted by
   `retarget.retarget_frames` (root height and stride follow leg length; the stance feet, found
   once per clip on the base, stay on the floor; a foot still below it gets a leg solve), then
-  lifted out of the floor with `reference_floor` (per body: a longer arm reaches lower).
+  lifted out of the floor with `reference_floor` (per body: a longer arm reaches lower). Its
+  frames are made when the scheduler first reads them (`common.motion.lazy_retarget`: the same
+  frames bit for bit; a reset reads about a second of a clip, and making every frame of it cost a
+  reset some 30 control steps), unless the retargeting needs the whole clip (`lazy_retarget.fits`).
 
 Order: filter, retarget, floor. The base humanoid's own references are filter, floor; the
 filter is the costly step (its rotation averaging, 0.2 s on a 5 s take) and does not depend on
@@ -31,6 +34,7 @@ import numpy as np
 from common.characters import Character, CharacterFactory
 from common.lru import Lru
 from common.motion.clean import clean_motion
+from common.motion.lazy_retarget import FrameRetarget, LazyRetargetedMotion, fits
 from common.motion.reference import CharacterMotion
 from common.motion.retarget import ContactPhases, RetargetConfig, frame_contact_phases, leg_length_ratio, retarget_frames
 from common.tasks.shape.rewards import Normalization
@@ -86,8 +90,11 @@ class ShapedReferences:
     out of the floor (`clean.floor_offsets`)."""
 
     def __init__(self, source: Callable[[str], CharacterMotion], base: Character, retarget: RetargetConfig,
-                 floor: bool, size: int):
+                 floor: bool, size: int, lazy: bool = True):
         self.source, self.base, self.retarget, self.floor = source, base, retarget, floor
+        self.lazy = lazy
+        """Make each reference's frames when the scheduler first reads them (`lazy_retarget`; the
+        same frames), not all at once when the reference is built."""
         self._cache: Lru[CharacterMotion] = Lru(size)
         self._contacts: dict[str, ContactPhases] = {}
 
@@ -109,6 +116,20 @@ class ShapedReferences:
         self._cache.clear()
 
     def _build(self, clip_id: str, body: ShapedBody) -> CharacterMotion:
+        src = self.source(clip_id)
+        fps, model, contacts = src.frames.fps, body.character.model, self.contacts(clip_id)
+        feet, ratio = tuple(self.base.foot_geoms), leg_length_ratio(body.character, self.base)
+        if self.lazy and fits(self.retarget, src.frames.loop, contacts):
+            # NOTE: the body's reference scratch data: frames are made inside the scheduler's reads,
+            # never while the environment's own kinematics loop over it (`reference_kinematics`)
+            frames = FrameRetarget(src.qpos_frames, fps, model, feet, ratio, contacts, self.retarget, self.floor,
+                                   body.ref_data)
+            return LazyRetargetedMotion(src.clip, model, frames)
+        return self.build_eager(clip_id, body)
+
+    def build_eager(self, clip_id: str, body: ShapedBody) -> CharacterMotion:
+        """The clip on `body` with every frame made at once (`retarget.retarget_frames`, then the
+        floor): what a lazy reference's frames equal, bit for bit."""
         src = self.source(clip_id)
         fps, model = src.frames.fps, body.character.model
         qpos = retarget_frames(src.qpos_frames, fps, src.frames.loop, model, tuple(self.base.foot_geoms),
