@@ -88,6 +88,11 @@ class RunConfig:
     resume: str = "auto"
     """auto: continue from the newest loadable checkpoint of this run if any; never: start over
     (refuses to overwrite an existing run's checkpoints); or a path to a checkpoint directory."""
+    init_from: str = ""
+    """Fine-tune: a checkpoint (directory, state.pt, run directory or `learner/pretrained/<name>`)
+    of the same task and network whose policy, value function and adaptive step size start this run;
+    the optimizer's moments, counters and sampler start fresh (`learner.fine_tune`). Ignored when the run resumes a
+    checkpoint of its own. Empty: start from random weights."""
     checkpoint_every: int = 10
     """Write a checkpoint every this many iterations (and always at the end)."""
     keep_checkpoints: int = 3

@@ -19,7 +19,7 @@ import torch
 
 from common.curve_keys import RunKeys
 from common.tasks.registry import task_clip_durations, task_clips, task_space
-from learner import checkpoint, cluster, run_progress
+from learner import checkpoint, cluster, fine_tune, run_progress
 from learner.actor_pool import RayActorPool, SerialActorPool
 from learner.collector import Collector
 from learner.config import RunConfig
@@ -85,6 +85,30 @@ def resumed_learner(cfg: RunConfig, resume_from: tuple[Path, dict] | None) -> Le
             usage_error(f"checkpoint {path} does not fit preset/task {cfg.task.name!r} with policy {cfg.policy.hidden} "
                         f"({type(exc).__name__}: {first}); give the same --preset and network it was trained with")
     return learner
+
+
+def fine_tuned_learner(cfg: RunConfig, learner: Learner) -> str:
+    """Load `cfg.init_from`'s networks into the fresh `learner` (`learner.fine_tune`); the run
+    log's line about it. A path that holds no checkpoint, or one of another task or network, is a
+    usage error (exit 2) before anything is written."""
+    try:
+        path = checkpoint.resolve(cfg.init_from)
+    except SystemExit:
+        usage_error(f"--init-from {cfg.init_from}: no state.pt there, nor a run directory with ckpt/<iteration>/state.pt")
+    try:
+        state = checkpoint.load(path)
+        source = RunConfig.from_json(str(state["config"]))
+    except (checkpoint.CheckpointError, KeyError, ValueError) as exc:
+        usage_error(f"--init-from {path}: not a usable training checkpoint ({type(exc).__name__}: {exc})")
+    if source.task.name != cfg.task.name:
+        usage_error(f"--init-from {path}: a checkpoint of task {source.task.name!r}; this run trains {cfg.task.name!r}")
+    try:
+        silenced = fine_tune.start_from(learner, state)
+    except (RuntimeError, KeyError, ValueError, TypeError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        usage_error(f"--init-from {path} does not fit task {cfg.task.name!r} with policy {cfg.policy.hidden} "
+                    f"({type(exc).__name__}: {first}); give the network it was trained with")
+    return fine_tune.describe(path, state, silenced)
 
 
 @dataclass
@@ -163,6 +187,8 @@ def _start(cfg: RunConfig) -> Run:
     run_dir, resume_from, notes = find_resume(cfg)
     torch.set_num_threads(cfg.resolved_learner_threads)
     learner = resumed_learner(cfg, resume_from)
+    if resume_from is None and cfg.init_from:
+        notes.append(fine_tuned_learner(cfg, learner))
     run_dir.mkdir(parents=True, exist_ok=True)  # NOTE: only once the configuration and checkpoint are known good
     (run_dir / "config.json").write_text(cfg.to_json() + "\n")
     out = RunLog(run_dir, quiet=cfg.quiet, sink=open_sink(cfg.logger, run_dir, cfg.name, cfg))
