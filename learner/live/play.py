@@ -32,7 +32,7 @@ import imageio.v2 as imageio
 from common.config_limits import PORT, Limit, above, at_least, check_limits, validated
 from common.tasks.executor.schedulers.factory import make_scheduler
 from learner.cli_options import parse_options, value_list
-from learner.live.session import LiveSession, Scheduler, SessionOptions, number_pair, shape_pair, video_status
+from learner.live.session import LiveSession, Scheduler, SessionOptions, number_pair, video_status
 from learner.progress import Progress
 
 PROG = "morphmimic play"
@@ -56,9 +56,6 @@ class PlayOptions(SessionOptions):
     """Simulated seconds to run."""
     speed: float = 1.0
     """Playback speed: simulated seconds per real (or video) second."""
-    shape: Annotated[tuple[tuple[str, float], ...], value_list(shape_pair, "NAME=VALUE", lambda p: f"{p[0]}={p[1]:g}")] = ()
-    """Shape parameters of a shape controller or of an executor trained over shapes (executor-shape),
-    the body built for the first episode (morphmimic character PRESET --list names them)."""
     scheduler: Scheduler = "dataset"
     """Where the executor's target frames come from."""
     stitch: Annotated[tuple[str, ...], value_list(str, "CLIP")] = ()

@@ -41,7 +41,7 @@ import dataclasses
 import math
 import typing
 from dataclasses import dataclass
-from typing import Any, ClassVar, Literal
+from typing import Annotated, Any, ClassVar, Literal
 
 import numpy as np
 import torch
@@ -51,6 +51,7 @@ from common.characters.mass import scale_body_mass
 from common.config_limits import SEED, Limit, check_limits, validated
 from common.tasks.registry import command_refusal, make_env, task_clips, task_entry
 from learner.checkpoint import Loaded, load_trained, make_policy
+from learner.cli_options import value_list
 from learner.evaluation import harness
 
 Agent = Literal["policy", "zero", "random"]
@@ -132,6 +133,9 @@ class SessionOptions:
     """The clip to follow (the executor: any humanoid clip)."""
     seed: int = 0
     """Seed of the session's starts and random actions."""
+    shape: Annotated[tuple[tuple[str, float], ...], value_list(shape_pair, "NAME=VALUE", lambda p: f"{p[0]}={p[1]:g}")] = ()
+    """Shape parameters of a shape controller or of an executor trained over shapes (executor-shape),
+    the body built for the first episode (morphmimic character PRESET --list names them)."""
 
     LIMITS: ClassVar[dict[str, Limit]] = {"seed": SEED}
     FLAG_PREFIX: ClassVar[str] = ""

@@ -8,6 +8,7 @@ UniCon 2020's schedulers (keyboard steering, clip stitching), projectiles and ma
     morphmimic studio --host 0.0.0.0 --allow-origin http://myhost:8080   # share it on the network
     morphmimic studio --seconds 30                      # stops by itself (tests, demos)
     morphmimic studio --checkpoint executor --screenshot runs/studio.png   # headless Chromium: a PNG
+    morphmimic studio --checkpoint runs/executor-shape --clip humanoid3d_walk --shape height=1.3   # opens on that body
 
 Library: the page is viser (1.x: a three.js client served by Python over a websocket, with GUI
 panels, uPlot plots and hotkeys), and the 3-D view is mjviser's `ViserMujocoScene` (by the mjlab
@@ -415,16 +416,17 @@ class Studio:
 
     def __init__(self, checkpoint: str | None = None, host: str = "127.0.0.1", port: int = 8080,
                  agent: str = "policy", clip: str | None = None, seed: int = 0, verbose: bool = False,
-                 idle_unwatched: bool = True, allow_origins: tuple[str, ...] = ()):
+                 idle_unwatched: bool = True, allow_origins: tuple[str, ...] = (), shape: dict[str, float] | None = None):
         """`allow_origins`: web origins besides the studio's own page whose websockets are
-        accepted (`origin_guard.OriginPolicy`); ValueError names a malformed one."""
+        accepted (`origin_guard.OriginPolicy`); ValueError names a malformed one. `shape`: the
+        body the session opens with (as `play --shape`); the sliders start there."""
         self.origins = OriginPolicy(allow_origins)
         server_log = logging.getLogger("websockets.server")
         if not any(isinstance(f, _QuietHandshakes) for f in server_log.filters):
             server_log.addFilter(_QuietHandshakes())
         checkpoints = pretrained_checkpoints()
         label = checkpoint or DEFAULT_CHECKPOINT
-        self.core = StudioCore(checkpoints.get(label, label), agent=agent, clip=clip, seed=seed, label=label)
+        self.core = StudioCore(checkpoints.get(label, label), agent=agent, clip=clip, seed=seed, label=label, shape=shape)
         self.server = guarded_viser_server(self.origins, host=host, port=port, label="morphmimic studio", verbose=verbose)
         if idle_unwatched:  # NOTE: after the server exists; until then nobody can watch
             self.core.watched = lambda: bool(self.server.get_clients())
@@ -522,7 +524,7 @@ def main(argv: list[str]) -> int:
     torch.set_num_threads(1)  # NOTE: one small MLP per step: more threads only fight the server's
     try:
         studio = Studio(args.checkpoint, host=args.host, port=args.port, agent=args.agent, clip=args.clip, seed=args.seed,
-                        allow_origins=args.allow_origin)
+                        allow_origins=args.allow_origin, shape=dict(args.shape) or None)
     except (ValueError, FileNotFoundError, SystemExit) as exc:  # NOTE: checkpoint.load_trained exits with a message on a bad checkpoint
         print(f"{PROG}: {exc}", file=sys.stderr)
         return 2

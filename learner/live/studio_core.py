@@ -77,10 +77,11 @@ class StudioCore:
 
     def __init__(self, checkpoint: str, agent: str = "policy", clip: str | None = None, seed: int = 0,
                  speed: float = 1.0, on_frame: Callable[["StudioCore"], None] | None = None, frame_hz: float = 30.0,
-                 label: str | None = None, watched: Callable[[], bool] | None = None):
+                 label: str | None = None, watched: Callable[[], bool] | None = None,
+                 shape: dict[str, float] | None = None):
         self.seed = seed
         self.speed = float(speed)
-        self.session = LiveSession(checkpoint, agent=agent, clip=clip, seed=seed, command="studio")
+        self.session = LiveSession(checkpoint, agent=agent, clip=clip, shape=shape, seed=seed, command="studio")
         self.checkpoint = checkpoint
         self.label = label or str(checkpoint)
         """The checkpoint as the user named it (typed, or picked in the page), not its run's name."""

@@ -61,3 +61,14 @@ def test_a_base_body_executor_refuses_a_shape_by_name(tmp_path, capsys) -> None:
         LiveSession(run, shape={"height": 1.2})
     assert play.main(["--checkpoint", run, "--shape", "height=1.2"]) == 2
     assert "cannot change shape" in capsys.readouterr().err
+
+
+def test_the_studio_opens_on_the_body_given(shaped, capsys) -> None:
+    from learner.live import studio
+    from learner.live.studio_core import StudioCore
+
+    core = StudioCore(shaped, clip="humanoid3d_walk", shape={"height": 1.3})
+    np.testing.assert_allclose(core.session.params, [1.3, 1.0])
+    assert core.session.status()["shape"] == {"height": 1.3, "thickness": 1.0}
+    assert studio.main(["--checkpoint", shaped, "--shape", "height=9", "--seconds", "1", "--port", "0"]) == 2
+    assert "shape parameter height = 9.0 is outside [0.75, 1.5]" in capsys.readouterr().err
