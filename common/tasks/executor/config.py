@@ -23,7 +23,7 @@ class ExecutorConfig:
     """Seed of the split (`common.motion.manifest.unicon_split`)."""
     library: Literal["core", "full"] = "core"
     """Which clips play on the humanoid: "core", the DeepMimic clips and the MASS clips retargeted
-    onto it (what every shipped executor trained on); "full", those and the Bandai Namco takes
+    onto it (what the executors shipped before 2026-12-07 trained on); "full", those and the Bandai Namco takes
     (`humanoid/bandai/*`, CC BY-NC 4.0: a checkpoint trained on them carries those terms), whose
     split is per class by takes (`common.motion.manifest.unicon_take_split`)."""
     mirror: bool = False
