@@ -36,7 +36,7 @@ import json
 from collections import Counter, defaultdict
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 import torch
@@ -248,6 +248,34 @@ def eval_shapes(cfg: TaskConfig, n: int, seed: int = SHAPE_SEED) -> np.ndarray:
     return shape_space(cfg).uniform(np.random.default_rng(seed), n)
 
 
+CLIP_ROTATION_STREAM = 1
+"""`shape_clip_assignment` shuffles with numpy `default_rng([seed, CLIP_ROTATION_STREAM])`: a stream
+of its own, so which clips a body runs does not correlate with the body `eval_shapes(cfg, n, seed)`
+draws from `default_rng(seed)`."""
+
+
+def shape_clip_assignment(clip_ids: Sequence[str], shapes: int, per_shape: int,
+                          seed: int = SHAPE_SEED) -> list[tuple[str, ...]]:
+    """The clips each of `shapes` bodies (N) runs under `--clips-per-shape per_shape` (K), shape
+    index -> clip ids: the ids sorted (the order --clips names them in does not matter), shuffled
+    by `default_rng([seed, CLIP_ROTATION_STREAM])`, that permutation repeated and cut into
+    consecutive blocks of K, block j to shape j (the balanced rotation). A shape's K clips are
+    distinct; every clip runs on floor(N K / C) or ceil(N K / C) shapes (C clips; with N K < C
+    only the first N K of the permutation run, each on one shape). The pairs depend only on (the
+    clip set, N, K, seed): every checkpoint evaluated with the same flags meets the same (shape,
+    clip) pairs. K = 0 (every clip on every shape) or K >= C: every clip on every shape, in the
+    given order. ValueError for N < 1 or K < 0."""
+    if shapes < 1 or per_shape < 0:
+        raise ValueError(f"shapes = {shapes} must be >= 1 and clips per shape = {per_shape} >= 0")
+    ids = list(dict.fromkeys(clip_ids))
+    if per_shape == 0 or per_shape >= len(ids):
+        return [tuple(ids)] * shapes
+    order = sorted(ids)
+    perm = [order[i] for i in np.random.default_rng([seed, CLIP_ROTATION_STREAM]).permutation(len(order))]
+    cycle = perm * -(-shapes * per_shape // len(perm))
+    return [tuple(cycle[j * per_shape:(j + 1) * per_shape]) for j in range(shapes)]
+
+
 SETTABLE = ("ankle_armature", "arm_armature", "pd_velocity_target", "pd_action_scale", "effort_scale", "passive_damping",
             "joint_velocity", "target_velocity_window", "alpha", "terminate_on", "reward_weights", "reward_scales",
             "reference_filter_hz", "reference_floor", "pd_target_range")
@@ -425,17 +453,22 @@ def _work(job: tuple) -> dict[str, Any]:
 
 
 def episode_jobs(clips: list[EvalClip], durations: dict[str, float], starts: int,
-                 shapes: int = 0) -> list[tuple]:
+                 shapes: int = 0, shape_clips: Sequence[Sequence[str]] | None = None) -> list[tuple]:
     """(index, clip_id, start_s) of every episode, clip-major; the index seeds the episode. With
     `shapes` N > 0, (index, clip_id, start_s, shape index) of every (clip, shape, start), clip
-    then shape major (a clip's retargeting onto a body is made once and reused by its starts)."""
+    then shape major (a clip's retargeting onto a body is made once and reused by its starts);
+    `shape_clips` (`shape_clip_assignment`, one entry per shape): only the (clip, shape) pairs it
+    lists, in the same order (every clip on every shape gives the jobs of no `shape_clips`)."""
     jobs: list[tuple] = []
+    on = None if shape_clips is None else [set(ids) for ids in shape_clips]
     for c in clips:
         times = start_times(durations[c.clip_id], starts)
         if not shapes:
             jobs += [(len(jobs) + k, c.clip_id, s) for k, s in enumerate(times)]
             continue
         for j in range(shapes):
+            if on is not None and c.clip_id not in on[j]:
+                continue
             for s in times:
                 jobs.append((len(jobs), c.clip_id, s, j))
     return jobs
@@ -444,18 +477,24 @@ def episode_jobs(clips: list[EvalClip], durations: dict[str, float], starts: int
 def evaluate(loaded: checkpoint.Loaded, clips: list[EvalClip], starts: int, workers: int = 1,
              perturbation: Perturbation = Perturbation(), progress: Callable[[int, int], None] | None = None,
              durations: dict[str, float] | None = None, zero_action: bool = False,
-             max_steps: int | None = None, shapes: np.ndarray | None = None) -> list[dict[str, Any]]:
+             max_steps: int | None = None, shapes: np.ndarray | None = None,
+             shape_clips: Sequence[Sequence[str]] | None = None) -> list[dict[str, Any]]:
     """One episode per (clip, start) (`episode_jobs`), each record tagged with its clip's label
     and split, in job order. `durations` (clip time, s) fixes the start frames; by default they
     are read from an environment at normal speed, so every perturbation row starts the same frames.
     `zero_action`: act with zeros instead of the checkpoint's policy (`harness.ZeroPolicy`);
     `max_steps`: stop every episode after that many control steps (`run_episode`). `shapes`
     `[N, P]` (`eval_shapes`): every (clip, start) on each of these bodies (`shape_task`), each
-    record carrying its `shape_index` and `shape`. The start frames are the base body's (a clip
-    retargeted onto a body keeps its timing)."""
+    record carrying its `shape_index` and `shape`; with `shape_clips` (`shape_clip_assignment`)
+    only each body's own clips (a clip no body runs is not even loaded). The start frames are the
+    base body's (a clip retargeted onto a body keeps its timing)."""
+    if shapes is not None and shape_clips is not None:
+        assigned = {cid for ids in shape_clips for cid in ids}
+        clips = [c for c in clips if c.clip_id in assigned]
     if durations is None:
         durations = clip_durations(make_eval_env(loaded, clips), clips)
-    jobs = episode_jobs(clips, durations, starts, 0 if shapes is None else len(shapes))
+    jobs = episode_jobs(clips, durations, starts, 0 if shapes is None else len(shapes),
+                        None if shapes is None else shape_clips)
     init = (str(loaded.path), list(clips), perturbation, zero_action, loaded.cfg.to_json(), max_steps,
             None if shapes is None else np.asarray(shapes, dtype=np.float64))
     results = harness.run_jobs(_init_worker, init, _work, jobs, workers, progress)
@@ -472,7 +511,8 @@ be expected to track (`zero_action_ceiling`)."""
 
 def zero_action_ceiling(loaded: checkpoint.Loaded, clips: list[EvalClip], starts: int, workers: int = 1,
                         records: list[dict] | None = None, steps: int = CEILING_STEPS,
-                        shapes: np.ndarray | None = None) -> dict[str, Any]:
+                        shapes: np.ndarray | None = None,
+                        shape_clips: Sequence[Sequence[str]] | None = None) -> dict[str, Any]:
     """The starts that fail within `steps` control steps with zero actions (the PD on the
     reference itself for PD targets, no torque for torques), run for those steps only on the
     same (clip, start) jobs as `evaluate`: such a start is lost before any policy could act on
@@ -481,8 +521,9 @@ def zero_action_ceiling(loaded: checkpoint.Loaded, clips: list[EvalClip], starts
     "ceiling_pct", "pose_failed", "pose_ceiling_pct" (the same by the pose terms), "by_split":
     {split: those}, "starts": [(clip_id, start_s)] of the failed ones}, and with the policy's
     `records` of the same jobs "policy_success_on_failed": how many of those the policy tracked.
-    `shapes`: the same jobs on those bodies (`evaluate`)."""
-    zero = evaluate(loaded, clips, starts, workers, zero_action=True, max_steps=steps, shapes=shapes)
+    `shapes`, `shape_clips`: the same jobs on those bodies (`evaluate`)."""
+    zero = evaluate(loaded, clips, starts, workers, zero_action=True, max_steps=steps, shapes=shapes,
+                    shape_clips=shape_clips)
 
     def agg(rs: list[dict]) -> dict[str, Any]:
         n = len(rs)
@@ -594,13 +635,50 @@ def summarize(records: list[dict], clips: list[EvalClip], space: ParamSpace | No
 
 EXTREME_SHARE = 0.1
 """The share of the shapes farthest from the base body (`extremeness`) the summary reports apart."""
+WORST_SHARE = 0.1
+"""The worst decile of the success map (`worst_decile`): this share of the shapes, lowest success first."""
+
+
+def share_count(share: float, n: int) -> int:
+    """How many of `n` shapes a `share` of them is: rounded, at least one."""
+    return max(1, int(round(share * n)))
+
+
+def worst_decile(records: list[dict]) -> dict[str, dict[str, Any]]:
+    """The worst decile of the success map, overall and per split: {"overall" | split:
+    {"success_pct", "shapes" (their indices), "of"}}. Its unit is the shape, not a cell of
+    `shape_map.png`: each shape is one uniform draw from the whole box, so the `WORST_SHARE` of
+    the shapes with the lowest success is the lowest tenth of the success map over every shape
+    parameter, while the map's cells depend on --map-params and --bins (and on the run's
+    plot_params by default), which would make the figure differ between checkpoints evaluated on
+    the same pairs. Per group: each shape's success % over its episodes of that group (a split's
+    figure ranks the shapes that ran some clip of the split), the `share_count` lowest taken
+    (ties do not change the figure), and the mean of their success %, each shape weighing the
+    same. With --clips-per-shape a shape's success rests on its few clips, so the decile also
+    gathers the shapes that drew hard clips: compare it between checkpoints on the same pairs,
+    not as the success of the worst bodies over every clip."""
+    groups: dict[str, dict[int, list[bool]]] = defaultdict(lambda: defaultdict(list))
+    for r in records:
+        for name in ("overall", r["split"]):
+            groups[name][int(r["shape_index"])].append(bool(r["success"]))
+    out: dict[str, dict[str, Any]] = {}
+    for name in ("overall", *SPLITS):
+        if name not in groups:
+            continue
+        ranked = sorted((100.0 * float(np.mean(ok)), j) for j, ok in groups[name].items())
+        worst = ranked[: share_count(WORST_SHARE, len(ranked))]
+        out[name] = {"success_pct": float(np.mean([x for x, _ in worst])), "shapes": sorted(j for _, j in worst),
+                     "of": len(ranked)}
+    return out
 
 
 def shape_summary(records: list[dict], space: ParamSpace) -> dict[str, Any]:
     """Per shape: its parameters (name -> value), `extremeness` and `stats` over every (clip,
     start) on it, in shape order ("per_shape"); the spread of per-shape success and PHC success
     (min, median, max %) and `stats` over the most extreme `EXTREME_SHARE` of the shapes and over
-    the rest ("extreme", "rest"), each by split too."""
+    the rest ("extreme", "rest"), each by split too; the worst decile of the success map
+    (`worst_decile`): its success % per group ("worst_decile_shape_success_pct": {"overall" |
+    split: %}, the figure to compare checkpoints by) and the shapes behind each ("worst_decile_shapes")."""
     groups: dict[int, list[dict]] = defaultdict(list)
     for r in records:
         groups[int(r["shape_index"])].append(r)
@@ -612,8 +690,10 @@ def shape_summary(records: list[dict], space: ParamSpace) -> dict[str, Any]:
         row = {"index": j, "params": dict(zip(space.names, map(float, groups[j][0]["shape"]))), "extremeness": float(e),
                **stats(groups[j])}
         per_shape.append(row)
-    k = max(1, int(round(EXTREME_SHARE * len(order))))
+    k = share_count(EXTREME_SHARE, len(order))
     extreme = {order[i] for i in np.argsort(ext)[::-1][:k]}
+
+    worst = worst_decile(records)
 
     def spread(key: str) -> dict[str, float]:
         xs = [row[key] for row in per_shape]
@@ -630,5 +710,8 @@ def shape_summary(records: list[dict], space: ParamSpace) -> dict[str, Any]:
         "extreme_share": EXTREME_SHARE, "extreme_shapes": sorted(extreme),
         "extreme": part([r for r in records if r["shape_index"] in extreme]),
         "rest": part([r for r in records if r["shape_index"] not in extreme]),
+        "worst_share": WORST_SHARE,
+        "worst_decile_shape_success_pct": {g: w["success_pct"] for g, w in worst.items()},
+        "worst_decile_shapes": {g: {"shapes": w["shapes"], "of": w["of"]} for g, w in worst.items()},
         "per_shape": per_shape,
     }

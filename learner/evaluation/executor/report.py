@@ -7,12 +7,18 @@ split (METHOD.md B "Evaluation"), with files and pictures.
     morphmimic evaluate --checkpoint runs/executor --clips my_clips/ take.bvh --workers 2 --no-render
     morphmimic evaluate --checkpoint runs/executor --zero-action          # the same episodes with zero actions: the baseline
     morphmimic evaluate --checkpoint runs/executor-shape --shapes 20 --starts 3   # every episode on 20 random bodies
+    morphmimic evaluate --checkpoint runs/executor-shape --shapes 300 --clips-per-shape 8 --starts 2   # 8 clips per body
     morphmimic evaluate --checkpoint runs/executor-shape --morph --clips humanoid3d_walk   # the body changes as it tracks
 
 --shapes N (seed --seed, default 2019): every (clip, start) on each of N shapes drawn uniformly from
 the box of the checkpoint's parameterization (on a base-body checkpoint: zero-shot, the baseline);
 records carry their shape, the summary adds per-shape figures, and `shape_map.png` shows success
-over two shape parameters (--map-params, --bins) per class. Default --out `eval_shapes`.
+over two shape parameters (--map-params, --bins) per class, and its worst decile (the success
+% over the tenth of the shapes with the lowest success, per split). --clips-per-shape K: each
+shape runs only K of the clips (each from the --starts frames), assigned by a seeded balanced
+rotation (`xe.shape_clip_assignment`: every clip on about N K / clips shapes), so a library of
+hundreds of clips fits hundreds of shapes; the pairs depend only on the clips, N, K and --seed,
+so checkpoints evaluated with the same flags meet the same (shape, clip) pairs. Default --out `eval_shapes`.
 --morph: `learner/evaluation/executor/morph.py`.
 
 --clips takes clip ids, clip files (.npz, .bvh onto the humanoid, DeepMimic .txt) and folders
@@ -34,6 +40,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, ClassVar
@@ -117,10 +124,15 @@ class ReportOptions(ClipOptions):
     """Output directory (default: <checkpoint dir>/eval_clips, with --shapes eval_shapes)."""
     shapes: int = 0
     """Run every (clip, start) on this many random body shapes drawn uniformly from the box of the
-    checkpoint's parameterization (seeded by --seed); on a checkpoint trained on the base body
-    only this is the zero-shot test. 0: the base body only."""
+    checkpoint's parameterization (seeded by --seed; with --clips-per-shape K only K clips on
+    each); on a checkpoint trained on the base body only this is the zero-shot test. 0: the base
+    body only."""
+    clips_per_shape: int = 0
+    """With --shapes N: run only K (this many) of the C clips on each shape, assigned by a seeded,
+    balanced rotation (every clip on about N K / C shapes; the same pairs for every checkpoint
+    given the same clips, --shapes, --clips-per-shape and --seed); 0: every clip on every shape."""
     seed: int = xe.SHAPE_SEED
-    """With --shapes: seed of the shape draws (fixed: every checkpoint sees the same bodies)."""
+    """With --shapes: seed of the shape draws and of the clip rotation (fixed: every checkpoint sees the same bodies)."""
     map_params: MapParams = ()
     """With --shapes: the two shape parameters of shape_map.png (default: the run's sampler.plot_params,
     else the parameterization's first two)."""
@@ -145,17 +157,21 @@ class ReportOptions(ClipOptions):
     default --out <checkpoint dir>/eval_clips_zero_action."""
     settings: Settings = ()
 
-    LIMITS: ClassVar[dict[str, Limit]] = {**ClipOptions.LIMITS, "shapes": at_least(0), "seed": SEED, "bins": at_least(1),
-                                          "strength": FINITE, "every": at_least(1)}
+    LIMITS: ClassVar[dict[str, Limit]] = {**ClipOptions.LIMITS, "shapes": at_least(0), "clips_per_shape": at_least(0),
+                                          "seed": SEED, "bins": at_least(1), "strength": FINITE, "every": at_least(1)}
 
     def validate(self) -> None:
         check_limits(self)
+        if self.clips_per_shape and not self.shapes:
+            raise ValueError(f"--clips-per-shape = {self.clips_per_shape} is not allowed without --shapes: give "
+                             "--shapes N >= 1 with it (K clips on each of N bodies), or --clips-per-shape 0")
 
 
 SHAPES_ONLY = ("seed", "map_params", "bins")
 """Options that only act with --shapes: refused without it rather than ignored."""
 MORPH_ONLY = ("strength", "schedule", "every")
-NOT_MORPH = ("shapes", "seed", "map_params", "bins", "starts", "workers", "zero_action", "settings", "render")
+NOT_MORPH = ("shapes", "clips_per_shape", "seed", "map_params", "bins", "starts", "workers", "zero_action", "settings",
+             "render")
 """Evaluation options the morph run does not take (it runs one clip on a schedule of bodies)."""
 
 
@@ -226,7 +242,7 @@ def markdown(loaded: checkpoint.Loaded, summary: dict, meta: dict, files: list[s
         *(stats_row(k, s) for k, s in summary["splits"].items()),
         stats_row("**all**", summary["overall"]), "",
         *([ceiling_line(summary["zero_action_ceiling"]), ""] if summary.get("zero_action_ceiling") else []),
-        *shape_tables(summary.get("shapes")),
+        *shape_tables(summary.get("shapes"), meta["clips_per_shape"] if meta.get("shape_clips") else 0),
         "## By class", "", "| class " + STATS_HEAD, rule,
         *(stats_row(f"`{k}`", s) for k, s in summary["classes"].items()), "",
         *label_level_table("content", summary.get("contents", {})),
@@ -258,17 +274,54 @@ def shape_protocol(loaded: checkpoint.Loaded, summary: dict, meta: dict) -> list
            "**Zero-shot**: the checkpoint trained on the base body only (no `--task.body.vary-shape`); these bodies are "
            "new to it (the baseline a shape executor is compared with). ")
     return [
-        f"**Body shapes**: every (clip, start) above is run on each of {sh['count']} shapes drawn uniformly (numpy "
+        f"**Body shapes**: {pairing(meta, sh['count'])} drawn uniformly (numpy "
         f"`default_rng({meta['shape_seed']})`, `ParamSpace.uniform`) from the whole box of parameterization "
         f"`{trained.parameterization}`: {box}. {how}Each episode builds the body of its shape and retargets the clip onto "
         "it (root height and stride by leg length, stance feet kept on the floor), and the two position terms of the "
         "reward are normalized by the body's size as in training with vary-shape (the base body's factor is 1). The "
-        "figures by split, class and clip are over every shape; the start frames are the base body's (retargeting keeps "
-        "a clip's timing). Success over two shape parameters per class: `shape_map.png`.", ""]
+        f"figures by split, class and clip are over "
+        f"{'the shapes each clip ran on' if meta.get('shape_clips') else 'every shape'}; "
+        "the start frames are the base body's (retargeting keeps a clip's timing). Success over two shape parameters "
+        "per class: `shape_map.png`.", ""]
 
 
-def shape_tables(sh: dict | None) -> list[str]:
-    """Markdown lines: the per-shape spread, the most extreme shapes against the rest, and each shape's row."""
+def pairing(meta: dict, count: int) -> str:
+    """Which clips ran on which of the `count` shapes, in the words of the summary's protocol (the
+    pairs `meta["shape_clips"]` when --clips-per-shape chose them, else every clip on every shape)."""
+    k, selected = meta.get("clips_per_shape", 0), len(meta["clips"])
+    if "shape_clips" not in meta:
+        cap = f" (`--clips-per-shape {k}` >= the {selected} clips: every clip on every shape)" if k else ""
+        return f"every (clip, start) above is run on each of {count} shapes{cap}"
+    runs = list(Counter(cid for ids in meta["shape_clips"] for cid in ids).values())
+    cover = (f"every clip on {min(runs)}-{max(runs)} shapes" if len(runs) == selected else
+             f"{count} x {k} < {selected} clips, so only {len(runs)} of them ran, each on one shape")
+    starts = meta["starts"]
+    return (f"each of {count} shapes runs {k} of the {selected} selected clips (`--clips-per-shape {k}`), each from "
+            f"{starts} start frame{'s' if starts > 1 else ''}: {count * k * starts} episodes. The pairs are a balanced "
+            f"rotation (`shape_clip_assignment`): the clip ids sorted, shuffled by numpy "
+            f"`default_rng([{meta['shape_seed']}, {xe.CLIP_ROTATION_STREAM}])`, that permutation repeated and cut into "
+            f"consecutive blocks of {k}, block j to shape j ({cover}); they depend only on the clips, --shapes, "
+            "--clips-per-shape and --seed, so every checkpoint evaluated with the same flags meets the same (shape, "
+            "clip) pairs (`results.json` meta `shape_clips`). The shapes are")
+
+
+def worst_decile_line(sh: dict, clips_per_shape: int = 0) -> str:
+    """The worst decile of the success map (`xe.worst_decile`) in one markdown paragraph."""
+    figures = "; ".join(f"{'all' if g == 'overall' else g} **{pct:.1f}%** ({len(sh['worst_decile_shapes'][g]['shapes'])} "
+                        f"of {sh['worst_decile_shapes'][g]['of']} shapes)"
+                        for g, pct in sh["worst_decile_shape_success_pct"].items())
+    caveat = (f" With {clips_per_shape} clips per shape a shape's success rests on its own few clips, so the decile also "
+              "gathers the shapes that drew hard clips: compare it between checkpoints evaluated on the same pairs."
+              if clips_per_shape else "")
+    return (f"**Worst decile of the success map** (`worst_decile_shape_success_pct` in `results.json`): the mean success % "
+            f"of the {100 * sh['worst_share']:.0f}% of shapes with the lowest success: {figures}. Its unit is the shape, "
+            "not a cell of `shape_map.png` (the cells change with --map-params and --bins; each shape is one uniform draw "
+            "from the whole box); a split's figure ranks the shapes by their episodes of that split." + caveat)
+
+
+def shape_tables(sh: dict | None, clips_per_shape: int = 0) -> list[str]:
+    """Markdown lines: the per-shape spread, the worst decile of the success map, the most extreme
+    shapes against the rest, and each shape's row."""
     if not sh:
         return []
     names = sh["names"]
@@ -279,6 +332,7 @@ def shape_tables(sh: dict | None) -> list[str]:
         "## By body shape", "",
         f"Per-shape success % min / median / max over the {sh['count']} shapes: {spread(sh['success_pct'])}; "
         f"PHC success %: {spread(sh['phc_success_pct'])}.", "",
+        worst_decile_line(sh, clips_per_shape), "",
         head, rule,
         stats_row(f"most extreme {100 * sh['extreme_share']:.0f}% of shapes ({len(sh['extreme_shapes'])})", sh["extreme"]),
         *(stats_row(f"  extreme, {k}", v) for k, v in sh["extreme"]["splits"].items()),
@@ -519,13 +573,15 @@ def best_and_worst(summary: dict) -> tuple[str, str]:
 def evaluate_checkpoint(loaded: checkpoint.Loaded, clips: list[xe.EvalClip], starts: int, workers: int, out: Path,
                         render: bool = False, gif: bool = False, log: str = "evaluate", zero_action: bool = False,
                         settings: list[str] | None = None, shapes: int = 0, seed: int = xe.SHAPE_SEED,
-                        map_params: tuple[str, ...] = (), bins: int = 4) -> dict[str, Any]:
+                        map_params: tuple[str, ...] = (), bins: int = 4, clips_per_shape: int = 0) -> dict[str, Any]:
     """Run the evaluation and write results.json, summary.md, clips.png (and the strips);
     returns {"meta", "summary", "episodes", "files"}. `zero_action`: the zero-action baseline
     in the checkpoint's task instead of its policy (no strips: they film the policy). `settings`:
     the `--set` pairs already applied to `loaded` (`xe.with_settings`), recorded in the files.
     `shapes` N > 0: every episode on each of N shapes (`xe.eval_shapes(cfg, N, seed)`), the
-    summary per shape too, and shape_map.png over `map_params` (`default_map_params`) with `bins`."""
+    summary per shape too, and shape_map.png over `map_params` (`default_map_params`) with `bins`;
+    `clips_per_shape` K > 0: each shape runs only its K clips of `xe.shape_clip_assignment(clips,
+    N, K, seed)`, recorded as meta "shape_clips"."""
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
     space = xe.shape_space(loaded.cfg.task) if shapes else None
@@ -535,11 +591,15 @@ def evaluate_checkpoint(loaded: checkpoint.Loaded, clips: list[xe.EvalClip], sta
         raise ValueError(f"--map-params {' '.join(map_params)}: give two different parameters of "
                          f"{', '.join(space.names)}")
     drawn = xe.eval_shapes(loaded.cfg.task, shapes, seed) if shapes else None
-    with Progress(f"[{log}] {loaded.name}", len(clips) * starts * max(shapes, 1), "episodes") as bar:
+    pairs = (xe.shape_clip_assignment([c.clip_id for c in clips], shapes, clips_per_shape, seed)
+             if shapes and 0 < clips_per_shape < len(clips) else None)  # K >= the clips: every clip on every shape
+    planned = sum(map(len, pairs)) if pairs else len(clips) * max(shapes, 1)
+    with Progress(f"[{log}] {loaded.name}", planned * starts, "episodes") as bar:
         records = xe.evaluate(loaded, clips, starts, workers, progress=lambda done, total: bar.set(done, total),
-                              zero_action=zero_action, shapes=drawn)
+                              zero_action=zero_action, shapes=drawn, shape_clips=pairs)
     summary = xe.summarize(records, clips, space)
-    summary["zero_action_ceiling"] = xe.zero_action_ceiling(loaded, clips, starts, workers, records, shapes=drawn)
+    summary["zero_action_ceiling"] = xe.zero_action_ceiling(loaded, clips, starts, workers, records, shapes=drawn,
+                                                            shape_clips=pairs)
     meta = {"checkpoint": str(loaded.path), "name": loaded.name, "task": "executor",
             "iteration": int(loaded.state.get("iteration", 0)), "env_steps": int(loaded.state.get("env_steps", 0)),
             "training": describe(loaded.cfg), "termination": loaded.cfg.task.executor.termination,
@@ -550,16 +610,19 @@ def evaluate_checkpoint(loaded: checkpoint.Loaded, clips: list[xe.EvalClip], sta
     if shapes:
         meta.update(shapes=shapes, shape_seed=seed, shape_names=list(space.names), map_params=list(names),
                     parameterization=loaded.cfg.task.body.parameterization, trained_on_shapes=loaded.cfg.task.body.vary_shape,
-                    shape_params=drawn.tolist())
+                    shape_params=drawn.tolist(), clips_per_shape=clips_per_shape,
+                    **({"shape_clips": [list(p) for p in pairs]} if pairs else {}))
+    on = f" on {shapes} shapes{f', {clips_per_shape} clips per shape' if clips_per_shape else ''}" if shapes else ""
     result = {"meta": meta, "summary": summary, "episodes": records}
     (out / "results.json").write_text(json.dumps(result, indent=1) + "\n")
     files = [str(out / "results.json"), str(plot_clips(summary, out / "clips.png",
                                                        f"{loaded.name}: success per clip ({starts} starts each"
-                                                       f"{f' on {shapes} shapes' if shapes else ''})"))]
+                                                       f"{on})"))]
     if shapes:
         summary["shapes"]["map"] = plot_shape_map(
             records, space, names, out / "shape_map.png", bins,
-            f"{loaded.name}: success over {' x '.join(names)} ({shapes} shapes, seed {seed}"
+            f"{loaded.name}: success over {' x '.join(names)} ({shapes} shapes"
+            f"{f', {clips_per_shape} clips each' if clips_per_shape else ''}, seed {seed}"
             f"{'' if loaded.cfg.task.body.vary_shape else '; zero-shot: trained on the base body'})")
         files.append(str(out / "shape_map.png"))
         (out / "results.json").write_text(json.dumps(result, indent=1) + "\n")
@@ -635,7 +698,8 @@ def main(argv: list[str]) -> int:
     out = Path(args.out) if args.out else loaded.path.parent / (default_out + ("_zero_action" if args.zero_action else ""))
     result = evaluate_checkpoint(loaded, clips, args.starts, args.workers, out, render=args.render, gif=args.gif,
                                  zero_action=args.zero_action, settings=list(args.settings), shapes=args.shapes,
-                                 seed=args.seed, map_params=tuple(args.map_params), bins=args.bins)
+                                 seed=args.seed, map_params=tuple(args.map_params), bins=args.bins,
+                                 clips_per_shape=args.clips_per_shape)
     s = result["summary"]
     name = f"{loaded.name} (zero action)" if args.zero_action else loaded.name
     for group, stats in s["splits"].items():
@@ -647,7 +711,10 @@ def main(argv: list[str]) -> int:
               f"{'' if loaded.cfg.task.body.vary_shape else ', zero-shot'}): per-shape success min/median/max "
               f"{sh['success_pct']['min']:.1f}/{sh['success_pct']['median']:.1f}/{sh['success_pct']['max']:.1f}%, "
               f"most extreme {100 * sh['extreme_share']:.0f}% of shapes {_f(sh['extreme']['success_pct'])}% "
-              f"against {_f(sh['rest']['success_pct'])}% on the others")
+              f"against {_f(sh['rest']['success_pct'])}% on the others; worst decile of shapes "
+              + ", ".join(f"{'all' if g == 'overall' else g} {pct:.1f}%"
+                          for g, pct in sh["worst_decile_shape_success_pct"].items())
+              + (f" ({args.clips_per_shape} clips per shape)" if args.clips_per_shape else ""))
     c = s["zero_action_ceiling"]
     print(f"[evaluate] {name} zero-action ceiling: {c['failed']} of {c['episodes']} starts fail within {c['steps']} "
           f"steps with zero actions (pose: {c['pose_failed']}); ceiling {_f(c['ceiling_pct'])}% "

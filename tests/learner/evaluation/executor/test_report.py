@@ -150,14 +150,15 @@ def test_set_refuses_a_name_given_twice(run_dir: Path, capsys) -> None:
 
 
 @pytest.mark.parametrize("option", [["--zero-action"], ["--starts", "3"], ["--clips", "humanoid3d_walk"],
-                                    ["--set", "ankle_armature=0.1"]])
+                                    ["--set", "ankle_armature=0.1"], ["--clips-per-shape", "2"]])
 def test_executor_options_on_a_shape_checkpoint_are_a_usage_error_naming_them(option, capsys) -> None:
     from learner.evaluation import evaluate
 
     with pytest.raises(SystemExit) as exc:
         evaluate.main(["--checkpoint", str(Path(__file__).resolve().parents[4] / "learner/pretrained/fish"), *option])
     assert exc.value.code == 2
-    assert ("task 'fish' is not the executor; --clips, --starts, --zero-action, --set are executor options"
+    assert ("task 'fish' is not the executor; --clips, --starts, --zero-action, --set, --clips-per-shape are executor "
+            "options"
             in capsys.readouterr().err)
 
 

@@ -1,16 +1,19 @@
 """The executor over body shapes in evaluation (issue 55 item 3): `evaluate --shapes` on a tiny
 executor really trained with `--task.body.vary-shape` and, zero-shot, on a base-body one; the
 mid-episode body change (`ExecutorEnv.set_shape`) and `evaluate --morph`; the robustness suite's
-shape row. Real MuJoCo throughout."""
+shape row; `--clips-per-shape` (a balanced, seeded rotation of the clips over the shapes) and the
+worst decile of the success map. Real MuJoCo throughout."""
 
 from __future__ import annotations
 
 import json
+from collections import Counter
 
 import numpy as np
 import pytest
 
 from common.characters.character import extent
+from common.tasks.executor.env import humanoid_clips
 from learner import checkpoint
 from learner.evaluation.executor import evaluate as xe
 from learner.evaluation.executor import report, robustness
@@ -188,3 +191,87 @@ def test_robustness_has_a_shape_row(shaped, fixed, tmp_path) -> None:
         assert res["meta"]["protocol"]["shape"]["trained_on_shapes"] == (run == shaped)
         assert "**The shape row**" in (out / "robustness.md").read_text()
     assert robustness.row_groups("mass,shape") == ("mass", "shape")
+
+
+def test_the_clip_rotation_is_balanced_seeded_and_covers_every_clip() -> None:
+    ids = [c for c, _ in humanoid_clips(library="full")]
+    assert len(ids) > 400  # the library: the case the rotation is for
+    n, k = 300, 8
+    pairs = xe.shape_clip_assignment(ids, n, k, 7)
+    assert len(pairs) == n and all(len(p) == len(set(p)) == k for p in pairs)
+    runs = Counter(c for p in pairs for c in p)
+    assert set(runs) == set(ids)  # every clip runs ...
+    lo = n * k // len(ids)
+    assert set(runs.values()) <= {lo, lo + 1} and sum(runs.values()) == n * k  # ... on floor or ceil of N K / C shapes
+    assert xe.shape_clip_assignment(ids, n, k, 7) == pairs  # deterministic per seed
+    assert xe.shape_clip_assignment(list(reversed(ids)), n, k, 7) == pairs  # the clip set counts, not its order
+    assert xe.shape_clip_assignment(ids, n, k, 8) != pairs
+    assert xe.shape_clip_assignment(ids, n + 5, k, 7)[:n] == pairs  # more shapes keep the first ones' clips
+    few = xe.shape_clip_assignment(ids, 3, 2, 7)  # N K < C: 6 distinct clips, one shape each
+    assert len({c for p in few for c in p}) == 6
+    everything = [tuple(ids)] * 4
+    assert xe.shape_clip_assignment(ids, 4, 0, 7) == everything == xe.shape_clip_assignment(ids, 4, len(ids) + 3, 7)
+    with pytest.raises(ValueError, match="clips per shape = -1"):
+        xe.shape_clip_assignment(ids, 4, -1, 7)
+    clips = [xe.EvalClip(c, "root", "train") for c in ids[:5]]
+    durations = {c.clip_id: 2.0 for c in clips}
+    full = xe.episode_jobs(clips, durations, 2, 3)
+    assert xe.episode_jobs(clips, durations, 2, 3, [tuple(ids[:5])] * 3) == full  # every clip: today's jobs exactly
+    some = xe.episode_jobs(clips, durations, 2, 3, [(ids[0],), (ids[1], ids[0]), (ids[4],)])
+    assert [(cid, j) for _, cid, _, j in some[::2]] == [(ids[0], 0), (ids[0], 1), (ids[1], 1), (ids[4], 2)]
+    assert [job[0] for job in some] == list(range(8))
+
+
+def test_worst_decile_ranks_the_shapes_per_split() -> None:
+    def rec(j, split, ok):
+        return {"shape_index": j, "split": split, "success": ok}
+
+    records = [rec(j, "train", j % 2 == 0) for j in range(20)] + [rec(j, "test", j < 5) for j in range(10)]
+    w = xe.worst_decile(records)
+    # overall: 8 shapes at 0% (5, 7, 9 failed both splits; 11, ..., 19 train only): 2 of 20, ties by index
+    assert w["overall"] == {"success_pct": 0.0, "shapes": [5, 7], "of": 20}
+    assert w["train"] == {"success_pct": 0.0, "shapes": [1, 3], "of": 20}
+    assert w["test"] == {"success_pct": 0.0, "shapes": [5], "of": 10}  # the 10 shapes that ran a test clip
+    mixed = [rec(0, "train", True), rec(0, "train", False), rec(1, "train", True)]
+    assert xe.worst_decile(mixed)["train"] == {"success_pct": 50.0, "shapes": [0], "of": 2}
+
+
+def test_evaluate_runs_k_clips_per_shape_on_the_assigned_pairs(shaped, tmp_path, capsys) -> None:
+    out = tmp_path / "pairs"
+    assert report.main(["--checkpoint", str(shaped), "--clips", CLIP, "humanoid3d_run", "--starts", "2", "--shapes", "3",
+                        "--clips-per-shape", "1", "--seed", "11", "--no-render", "--out", str(out)]) == 0
+    res = json.loads((out / "results.json").read_text())
+    eps, meta = res["episodes"], res["meta"]
+    pairs = xe.shape_clip_assignment([CLIP, "humanoid3d_run"], 3, 1, 11)
+    assert len(eps) == 3 * 2  # 3 shapes x 1 clip x 2 starts
+    assert meta["clips_per_shape"] == 1 and meta["shape_clips"] == [list(p) for p in pairs]
+    assert sorted((r["shape_index"], r["clip_id"]) for r in eps) == sorted((j, p[0]) for j, p in enumerate(pairs) for _ in "ab")
+    shapes = xe.eval_shapes(checkpoint.load_trained(shaped).cfg.task, 3, 11)  # the same bodies as without the flag
+    for r in eps:
+        np.testing.assert_allclose(r["shape"], shapes[r["shape_index"]])
+    sh = res["summary"]["shapes"]
+    assert all(p["episodes"] == 2 for p in sh["per_shape"])
+    per_shape = {p["index"]: p["success_pct"] for p in sh["per_shape"]}
+    worst = sh["worst_decile_shape_success_pct"]
+    assert set(worst) == {"overall", "train", "test"}
+    assert worst["overall"] == pytest.approx(min(per_shape.values()))  # 10% of 3 shapes: the worst one
+    assert sh["worst_decile_shapes"]["train"]["of"] == sum(p == (CLIP,) for p in pairs)
+    assert res["summary"]["zero_action_ceiling"]["episodes"] == 6  # the same jobs
+    assert set(sh["map"]) >= {"all"}
+    md = (out / "summary.md").read_text()
+    assert "each of 3 shapes runs 1 of the 2 selected clips (`--clips-per-shape 1`)" in md
+    assert "`default_rng([11, 1])`" in md and "every clip on 1-2 shapes" in md
+    assert "**Worst decile of the success map**" in md and f"all **{worst['overall']:.1f}%** (1 of 3 shapes)" in md
+    assert "worst decile of shapes all" in capsys.readouterr().out
+
+
+def test_a_bad_clips_per_shape_exits_2_naming_it(shaped, capsys) -> None:
+    for argv, says in ((["--clips-per-shape", "-1", "--shapes", "2"], "--clips-per-shape = -1 is not allowed: give"),
+                       (["--clips-per-shape", "2"], "--clips-per-shape = 2 is not allowed without --shapes"),
+                       (["--clips-per-shape", "two", "--shapes", "2"], "--clips-per-shape"),
+                       (["--morph", "--shapes", "2", "--clips-per-shape", "1"], "--clips-per-shape: not options of --morph")):
+        with pytest.raises(SystemExit) as exc:
+            report.main(["--checkpoint", str(shaped), *argv])
+        assert exc.value.code == 2
+        err = capsys.readouterr().err
+        assert says in err and len(err.strip().splitlines()) == 1, err
