@@ -637,6 +637,9 @@ EXTREME_SHARE = 0.1
 """The share of the shapes farthest from the base body (`extremeness`) the summary reports apart."""
 WORST_SHARE = 0.1
 """The worst decile of the success map (`worst_decile`): this share of the shapes, lowest success first."""
+NEIGHBOUR_SHARE = 0.05
+"""`worst_decile` reads the success map at a shape as the pooled success of this share of the
+shapes nearest it (itself included): 15 of 300 shapes, 60 episodes at 2 clips x 2 starts each."""
 
 
 def share_count(share: float, n: int) -> int:
@@ -644,31 +647,46 @@ def share_count(share: float, n: int) -> int:
     return max(1, int(round(share * n)))
 
 
-def worst_decile(records: list[dict]) -> dict[str, dict[str, Any]]:
+def worst_decile(records: list[dict], space: ParamSpace | None = None) -> dict[str, dict[str, Any]]:
     """The worst decile of the success map, overall and per split: {"overall" | split:
-    {"success_pct", "shapes" (their indices), "of"}}. Its unit is the shape, not a cell of
-    `shape_map.png`: each shape is one uniform draw from the whole box, so the `WORST_SHARE` of
-    the shapes with the lowest success is the lowest tenth of the success map over every shape
-    parameter, while the map's cells depend on --map-params and --bins (and on the run's
-    plot_params by default), which would make the figure differ between checkpoints evaluated on
-    the same pairs. Per group: each shape's success % over its episodes of that group (a split's
-    figure ranks the shapes that ran some clip of the split), the `share_count` lowest taken
-    (ties do not change the figure), and the mean of their success %, each shape weighing the
-    same. With --clips-per-shape a shape's success rests on its few clips, so the decile also
-    gathers the shapes that drew hard clips: compare it between checkpoints on the same pairs,
-    not as the success of the worst bodies over every clip."""
+    {"success_pct", "shapes" (their indices), "of"}}.
+
+    The map is read at every evaluated shape as the pooled success of the episodes on its
+    `NEIGHBOUR_SHARE` nearest shapes (itself included; distances in parameters scaled to the
+    box, `space`; without a space or a record's "shape", each shape alone); the `WORST_SHARE` of
+    the shapes where it is lowest are the worst decile, and its figure is the mean of their map
+    values. Each shape is one uniform draw from the whole box, so this is the lowest tenth of the
+    map over every shape parameter whatever --map-params and --bins draw. The neighbourhood is
+    what makes it a map: with 2 clips x 2 starts per shape, a shape alone has 4 episodes, and the
+    lowest tenth of 300 such shapes was 0% for every checkpoint (the shapes that drew two hard
+    clips). Per group: the shapes that ran some clip of that group, pooled over their episodes of
+    it; ties ranked by index."""
     groups: dict[str, dict[int, list[bool]]] = defaultdict(lambda: defaultdict(list))
+    where: dict[int, np.ndarray] = {}
     for r in records:
+        j = int(r["shape_index"])
         for name in ("overall", r["split"]):
-            groups[name][int(r["shape_index"])].append(bool(r["success"]))
+            groups[name][j].append(bool(r["success"]))
+        if space is not None and "shape" in r:
+            where[j] = (np.asarray(r["shape"], float) - space.low_array) / np.maximum(space.high_array - space.low_array, 1e-12)
     out: dict[str, dict[str, Any]] = {}
     for name in ("overall", *SPLITS):
         if name not in groups:
             continue
-        ranked = sorted((100.0 * float(np.mean(ok)), j) for j, ok in groups[name].items())
+        shapes = sorted(groups[name])
+        hits = np.array([sum(groups[name][j]) for j in shapes], float)
+        counts = np.array([len(groups[name][j]) for j in shapes], float)
+        k = share_count(NEIGHBOUR_SHARE, len(shapes)) if len(where) == len(groups["overall"]) else 1
+        if k > 1:
+            pts = np.stack([where[j] for j in shapes])
+            near = np.argsort(((pts[:, None, :] - pts[None, :, :]) ** 2).sum(-1), axis=1, kind="stable")[:, :k]
+            value = 100.0 * hits[near].sum(1) / counts[near].sum(1)
+        else:
+            value = 100.0 * hits / counts
+        ranked = sorted(zip(value.tolist(), shapes))
         worst = ranked[: share_count(WORST_SHARE, len(ranked))]
         out[name] = {"success_pct": float(np.mean([x for x, _ in worst])), "shapes": sorted(j for _, j in worst),
-                     "of": len(ranked)}
+                     "of": len(ranked), "neighbours": k}
     return out
 
 
@@ -693,7 +711,7 @@ def shape_summary(records: list[dict], space: ParamSpace) -> dict[str, Any]:
     k = share_count(EXTREME_SHARE, len(order))
     extreme = {order[i] for i in np.argsort(ext)[::-1][:k]}
 
-    worst = worst_decile(records)
+    worst = worst_decile(records, space)
 
     def spread(key: str) -> dict[str, float]:
         xs = [row[key] for row in per_shape]
@@ -712,6 +730,7 @@ def shape_summary(records: list[dict], space: ParamSpace) -> dict[str, Any]:
         "rest": part([r for r in records if r["shape_index"] not in extreme]),
         "worst_share": WORST_SHARE,
         "worst_decile_shape_success_pct": {g: w["success_pct"] for g, w in worst.items()},
-        "worst_decile_shapes": {g: {"shapes": w["shapes"], "of": w["of"]} for g, w in worst.items()},
+        "worst_decile_shapes": {g: {"shapes": w["shapes"], "of": w["of"], "neighbours": w["neighbours"]}
+                                for g, w in worst.items()},
         "per_shape": per_shape,
     }

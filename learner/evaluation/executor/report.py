@@ -310,12 +310,15 @@ def worst_decile_line(sh: dict, clips_per_shape: int = 0) -> str:
     figures = "; ".join(f"{'all' if g == 'overall' else g} **{pct:.1f}%** ({len(sh['worst_decile_shapes'][g]['shapes'])} "
                         f"of {sh['worst_decile_shapes'][g]['of']} shapes)"
                         for g, pct in sh["worst_decile_shape_success_pct"].items())
-    caveat = (f" With {clips_per_shape} clips per shape a shape's success rests on its own few clips, so the decile also "
-              "gathers the shapes that drew hard clips: compare it between checkpoints evaluated on the same pairs."
+    k = max(w.get("neighbours", 1) for w in sh["worst_decile_shapes"].values())
+    caveat = (f" With {clips_per_shape} clips per shape a shape's own success rests on its few clips; the neighbourhood "
+              "pools them, but compare the figure between checkpoints evaluated on the same pairs."
               if clips_per_shape else "")
-    return (f"**Worst decile of the success map** (`worst_decile_shape_success_pct` in `results.json`): the mean success % "
-            f"of the {100 * sh['worst_share']:.0f}% of shapes with the lowest success: {figures}. Its unit is the shape, "
-            "not a cell of `shape_map.png` (the cells change with --map-params and --bins; each shape is one uniform draw "
+    return (f"**Worst decile of the success map** (`worst_decile_shape_success_pct` in `results.json`): the map read at "
+            f"each shape as the pooled success of its {k} nearest shapes (itself included, parameters scaled to the box), "
+            f"and the mean of that value over the {100 * sh['worst_share']:.0f}% of shapes where it is lowest: {figures}. "
+            "Its unit is the shape, not a cell of `shape_map.png` (the cells change with --map-params and --bins; each "
+            "shape is one uniform draw "
             "from the whole box); a split's figure ranks the shapes by their episodes of that split." + caveat)
 
 

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from common.characters.character import extent
+from common.params import ParamSpace
 from common.tasks.executor.env import humanoid_clips
 from learner import checkpoint
 from learner.evaluation.executor import evaluate as xe
@@ -229,11 +230,32 @@ def test_worst_decile_ranks_the_shapes_per_split() -> None:
     records = [rec(j, "train", j % 2 == 0) for j in range(20)] + [rec(j, "test", j < 5) for j in range(10)]
     w = xe.worst_decile(records)
     # overall: 8 shapes at 0% (5, 7, 9 failed both splits; 11, ..., 19 train only): 2 of 20, ties by index
-    assert w["overall"] == {"success_pct": 0.0, "shapes": [5, 7], "of": 20}
-    assert w["train"] == {"success_pct": 0.0, "shapes": [1, 3], "of": 20}
-    assert w["test"] == {"success_pct": 0.0, "shapes": [5], "of": 10}  # the 10 shapes that ran a test clip
+    assert w["overall"] == {"success_pct": 0.0, "shapes": [5, 7], "of": 20, "neighbours": 1}
+    assert w["train"] == {"success_pct": 0.0, "shapes": [1, 3], "of": 20, "neighbours": 1}
+    assert w["test"] == {"success_pct": 0.0, "shapes": [5], "of": 10, "neighbours": 1}  # the 10 shapes that ran a test clip
     mixed = [rec(0, "train", True), rec(0, "train", False), rec(1, "train", True)]
-    assert xe.worst_decile(mixed)["train"] == {"success_pct": 50.0, "shapes": [0], "of": 2}
+    assert xe.worst_decile(mixed)["train"] == {"success_pct": 50.0, "shapes": [0], "of": 2, "neighbours": 1}
+
+
+def test_the_worst_decile_reads_the_map_over_each_shapes_neighbours() -> None:
+    """With a box, the map at a shape pools its NEIGHBOUR_SHARE nearest shapes: a region that
+    fails is found, a lone unlucky shape in a good region is not, and the figure is not the
+    0% every few-episode shape would give."""
+    space = ParamSpace(names=("height", "thickness"), low=(0.0, 0.0), high=(1.0, 1.0), default=(0.5, 0.5))
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(0, 1, (200, 2))
+    records = []
+    for j, (x, y) in enumerate(pts):
+        p_ok = 0.1 if x < 0.2 else 0.9  # the thin strip x < 0.2 is where the policy fails
+        for _ in range(4):
+            records.append({"shape_index": j, "split": "train", "success": bool(rng.uniform() < p_ok or j == 7),
+                            "shape": [float(x), float(y)]})
+    alone = xe.worst_decile(records)["train"]
+    mapped = xe.worst_decile(records, space)["train"]
+    assert alone["success_pct"] == 0.0 and alone["neighbours"] == 1
+    assert mapped["neighbours"] == xe.share_count(xe.NEIGHBOUR_SHARE, 200) == 10
+    assert 0.0 < mapped["success_pct"] < 30.0
+    assert all(pts[j, 0] < 0.3 for j in mapped["shapes"])  # the decile lies in the failing strip
 
 
 def test_evaluate_runs_k_clips_per_shape_on_the_assigned_pairs(shaped, tmp_path, capsys) -> None:
