@@ -176,7 +176,11 @@ def _shape_executor_preset() -> RunConfig:
     while the balancer still picks every episode's clip. The other executor presets fit no Vm
     worth sampling from (k = 0, one Adam step per iteration, a refill every 1,000 iterations);
     here Won & Lee's settings are back (SamplerConfig's defaults: k = 5, a refill every 20
-    iterations, 64 Adam steps per iteration on the 4,096 pairs of each)."""
+    iterations, 64 Adam steps per iteration on the 4,096 pairs of each). Measured: fine-tuned
+    2 M steps from the fixed-body executor, k = 5 did worse on 300 random bodies than k = 0 (36.8 /
+    26.0% against 42.7 / 29.6% train / test; its buffers held thin bodies it tracked 3% of), so the
+    shipped `executor-shape` checkpoint is the k = 0 arm; k stays the paper's until a longer run
+    decides (docs/experiments/2026-12-07-executor-shape-fine-tune.md)."""
     base = _track_preset()
     return dataclasses.replace(base, name="executor-shape", task=executor_task("shape"),
                                sampler=dataclasses.replace(base.sampler, **SHAPE_CLASS_SAMPLER))
