@@ -53,9 +53,7 @@ def start_from(learner: Learner, state: dict[str, Any]) -> int:
     by a KL of 0.84 against the target's 0.01). Returns how many inputs were silenced.
     KeyError, RuntimeError or ValueError when the state does not fit (`train.fine_tuned_learner`
     turns it into one line)."""
-    learner.policy.load_state_dict(state["policy"])
-    learner.value.load_state_dict({**{k: v for k, v in learner.value.state_dict().items() if k.startswith("target_")},
-                                   **state["value"]})
+    learner.load_networks(state)
     normalizer = learner.policy.normalizer
     normalizer.check()
     mask = constant_inputs(normalizer)

@@ -193,12 +193,17 @@ class Learner:
             "numpy_rng": json.dumps(self.rng.bit_generator.state),  # picks the sampler's value pairs
         }
 
-    def load_state_dict(self, state: dict[str, Any]) -> None:
+    def load_networks(self, state: dict[str, Any]) -> None:
+        """A checkpoint's policy (with its observation statistics) and value function: what a
+        resume and a fine-tune (`learner.fine_tune`) both take."""
         self.policy.load_state_dict(state["policy"])
         # NOTE: checkpoints from before the value net's return statistics have none; (0, 1) is
         # what their value net computed, and the first update's output-preserving rescale starts there.
         self.value.load_state_dict({**{k: v for k, v in self.value.state_dict().items() if k.startswith("target_")},
                                     **state["value"]})
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.load_networks(state)
         self.ppo.optimizer.load_state_dict(state["optimizer"])
         self.ppo.restore_lr(float(state["lr"]))
         self.iteration = int(state["iteration"])
