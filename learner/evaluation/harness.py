@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import multiprocessing
+import signal
 from pathlib import Path
 from typing import Any, Callable
 
@@ -64,6 +65,16 @@ class ZeroPolicy:
         return np.zeros((n, self.act_dim), np.float32), np.zeros(n, np.float32)
 
 
+def _init_pool_worker(init: Callable, init_args: tuple) -> None:
+    """A forked pool worker's set-up: the default signal dispositions first (a worker inherits
+    the parent's Python handlers, such as the one `ray.init` installs that raises SystemExit on
+    SIGTERM, and then survives the pool's SIGTERM at its end, hanging the pool's join for good;
+    Ctrl-C is the parent's to handle), then `init(*init_args)`."""
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    init(*init_args)
+
+
 def run_jobs(init: Callable, init_args: tuple, work: Callable[[Any], dict], jobs: list, workers: int,
              progress: Callable[[int, int], None] | None = None) -> list[dict]:
     """`work(job)` for every job, in this process (`workers` <= 1) or in a pool of forked
@@ -78,7 +89,8 @@ def run_jobs(init: Callable, init_args: tuple, work: Callable[[Any], dict], jobs
                 progress(len(results), len(jobs))
     else:
         ctx = multiprocessing.get_context("fork")
-        with ctx.Pool(min(workers, len(jobs)), initializer=init, initargs=init_args) as pool:
+        with ctx.Pool(min(workers, len(jobs)), initializer=_init_pool_worker,
+                      initargs=(init, init_args)) as pool:
             for res in pool.imap_unordered(work, jobs):
                 results.append(res)
                 if progress:
