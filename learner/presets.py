@@ -54,10 +54,14 @@ ADAPTIVE_K = 1.0
 def _shape_preset(character: str, variant: str = "") -> RunConfig:
     """Won & Lee 2019 over one character family (METHOD.md A): the task from
     `common.tasks.shape.presets`, 3 x 128 ReLU nets, gamma 0.95, 4096 transitions per update,
-    10 epochs of 128-transition minibatches, adaptive shape sampling with k = `ADAPTIVE_K`.
+    5 epochs of 512-transition minibatches, adaptive shape sampling with k = `ADAPTIVE_K`.
 
-    Choices measured on this 2-core machine (docs/shape-controllers.md): 5 x 256 left the
-    learner idle and learned too slowly per sample, so the paper's 10 x 128 stays; k = 1 keeps
+    Choices measured on this 2-core machine (docs/shape-controllers.md): 5 x 512 instead of the
+    paper's 10 x 128, chosen by learning per wall-clock second on the lower biped side by side
+    (docs/experiments/2026-12-07-lower-biped-update-schedule.md: at an equal 7,240 s, 5.0 M
+    against 4.1 M steps and 6.5 s against 2.4 s up on 100 shapes; also ahead per sample, 3.5 s
+    against 2.3 s at 4.1 M steps; the learner's share 7% against 17%; the shipped shape
+    checkpoints were trained with 10 x 128, kept in their configs); k = 1 keeps
     the worst-to-best shape weight near 3 early on (k = 5 weighted it ~400x and chased bodies
     the policy could not yet control). The log-std is not learned but annealed by UniCon's
     policy variance controller from -1.0 to -1.5 over 5 M steps at lr 1e-4 (MASS's default); a
@@ -72,7 +76,7 @@ def _shape_preset(character: str, variant: str = "") -> RunConfig:
         vm_plot_every=20,
         task=shape_task(character, variant),
         policy=PolicyConfig(init_log_std=-1.0, learn_log_std=False, final_log_std=-1.5, log_std_anneal_steps=5_000_000),
-        ppo=PPOConfig(epochs=10, minibatch=128, lr=1e-4, kl_stop=0.1),
+        ppo=PPOConfig(epochs=5, minibatch=512, lr=1e-4, kl_stop=0.1),
         actors=ActorConfig(num_actors=2, envs_per_actor=8, unroll_length=32),
         sampler=SamplerConfig(k=0.0 if variant == "uniform" else ADAPTIVE_K, plot_params=SHAPE_TASKS[character][1]),
     )

@@ -53,9 +53,10 @@ class Runs:
         if task not in self.done:
             from learner.train import train
 
-            cfg = dataclasses.replace(PRESETS[TRAINED[task]][1], runs_dir=str(self.root), quiet=True, mode="serial",
+            base = PRESETS[TRAINED[task]][1]
+            cfg = dataclasses.replace(base, runs_dir=str(self.root), quiet=True, mode="serial",
                                       max_iterations=ITERATIONS[task], steps_per_iteration=256, total_env_steps=10**6,
-                                      vm_plot_every=0)
+                                      vm_plot_every=0, ppo=dataclasses.replace(base.ppo, minibatch=min(base.ppo.minibatch, 256)))
             if task == "executor":
                 cfg = dataclasses.replace(cfg, task=dataclasses.replace(
                     cfg.task, executor=dataclasses.replace(cfg.task.executor, clips=(EXECUTOR_CLIP,))))
