@@ -150,6 +150,9 @@ class Run:
     def _save(self) -> None:
         state = self.learner.state_dict()
         state["transport"] = self.transport.state_dict()
+        # NOTE: received (counted in `unrolls_received`) but not yet trained on: a session killed
+        # after this checkpoint takes them with it; a resume counts them as `unused_at_resume`.
+        state["transport"]["pending_unrolls"] = len(self.collector.pending) if self.collector else 0
         state["faults"] = self.fault_counters()
         sampler_state = self.sampler.state()
         if sampler_state is not None:
@@ -417,6 +420,7 @@ def _stop_and_save(run: Run, interrupted: bool) -> None:
     except Interrupted:
         pass
     run.transport.counters["unused_at_stop"] += len(run.collector.pending)
+    run.collector.pending.clear()  # counted: the final checkpoint must not count them again at a resume
     run.save(quick=signalled)  # NOTE: always: the drain's counts belong in it even at a saved iteration
     try:
         with run.sampler.quick() if signalled else contextlib.nullcontext():
@@ -475,6 +479,7 @@ def _wire_metrics(transport: LearnerTransport, learner: Learner, pool) -> dict[s
         "wire/steps_received": float(c["steps_received"]),
         "wire/stale_unrolls": float(c["stale_unrolls"]),
         "wire/seq_gap_unrolls": float(c["seq_gap_unrolls"]),
+        "wire/late_unrolls": float(c["late_unrolls"]),
         "wire/rejected": float(rejected),
         "wire/bytes_received": float(transport.bytes_received),
         "wire/snapshots_served": float(c["snapshots_served"]),

@@ -11,7 +11,13 @@ Loss accounting: each actor numbers its unrolls (`UnrollMsg.seq`, durable across
 `actors/seq_ledger.py`). A number skipped by an unroll, or covered by a heartbeat's `seq` but
 never received, is a lost unroll: `seq_gap_unrolls`. At stop, `drain` reads the socket until
 every actor's final heartbeat arrived (or it stays quiet): what arrives is counted, and the final
-heartbeat's `seq` exposes the tail an actor numbered but the learner never got.
+heartbeat's `seq` exposes the tail an actor numbered but the learner never got. A number counted
+as a gap that arrives after all (a restarted actor's new connection read before its old one's
+last unroll) is taken back from the gaps and counted as `late_unrolls`.
+
+Every received unroll is trained on (`unrolls_trained`), dropped as stale (`stale_unrolls`), or
+left unused: at a stop (`unused_at_stop`), or by a session killed after a checkpoint that
+recorded it waiting for the next batch (`unused_at_resume`).
 
 A number is judged against what the actor could have sent (`_advance`): a jump of more than
 `MAX_SEQ_JUMP` is refused (`rejected/seq_jump`) and never counted as a gap, and a number below
@@ -40,6 +46,9 @@ MAX_SEQ_JUMP = 1024
 """Most unroll numbers one message may skip. An honest gap is the few unrolls queued between a
 dying actor and the learner (ZeroMQ's queues hold 4 each way), one per crash before a send, or
 unrolls the codec refused; a larger jump is refused, not counted as lost unrolls."""
+
+MAX_MISSING = 4 * MAX_SEQ_JUMP
+"""Most gap numbers remembered per actor, so that a late arrival can be taken back from the gaps."""
 
 
 class LearnerTransport:
@@ -97,6 +106,9 @@ class LearnerTransport:
         """Most numbers an actor's first number past its resume mark may skip (more is refused as
         `seq_jump`); the run raises it by what the killed session's extra iterations could have
         numbered."""
+        self.missing: dict[int, set[int]] = {}
+        """Numbers counted as gaps per actor (at most `MAX_MISSING` each, the newest): one that
+        arrives after all is taken back from `seq_gap_unrolls` and counted as `late_unrolls`."""
         self.received: collections.Counter[int] = collections.Counter()
         """Valid unrolls received per actor."""
         self.sampler_outages: dict[int, int] = {}
@@ -207,6 +219,14 @@ class LearnerTransport:
         actor whose ledger numbers on from an earlier session), a heartbeat never is. After a
         resume, an actor's first number past its checkpoint mark (`resume_marks`) books what it
         skips as `lost/unrolls_at_resume`, up to `resume_allowance`, instead of as a gap."""
+        if unroll and seq in self.missing.get(actor_id, ()):
+            # Counted as a gap when a later number came first: a restarted actor's new connection
+            # can be read before the last unrolls its killed process left queued on the old one
+            # (a PULL socket takes turns between connections). Not lost after all.
+            self.missing[actor_id].discard(seq)
+            self.counters["seq_gap_unrolls"] -= 1
+            self.counters["late_unrolls"] += 1
+            return
         if actor_id not in self.last_seq and self.resumed:
             mark = self.resume_marks.get(actor_id)
             if mark is not None:  # the checkpoint's high-water mark: what a low number cannot undercut
@@ -242,6 +262,7 @@ class LearnerTransport:
             if self.counters["seq_gap_unrolls"] == 0:
                 log.warning("actor %d: %d unroll(s) lost (seq %d -> %d)", actor_id, gap, base, seq)
             self.counters["seq_gap_unrolls"] += gap
+            self._remember_missing(actor_id, range(base + 1, due + 1))
         if unroll:
             if base is None:
                 self.counters["seq_restarts"] += 1
@@ -251,6 +272,13 @@ class LearnerTransport:
         reached = self.numbering.get(actor_id, -1)
         if reached > high:
             self.last_seq[actor_id] = reached
+
+    def _remember_missing(self, actor_id: int, numbers: range) -> None:
+        missing = self.missing.setdefault(actor_id, set())
+        missing.update(numbers[-MAX_MISSING:])
+        if len(missing) > MAX_MISSING:
+            for n in sorted(missing)[:len(missing) - MAX_MISSING]:
+                missing.discard(n)
 
     def _book(self, msg, policy_version: int, max_policy_lag: int) -> wire.UnrollMsg | None:
         if isinstance(msg, wire.UnrollMsg) and msg.policy_version > policy_version:
@@ -343,6 +371,11 @@ class LearnerTransport:
                 self.resume_marks[int(k)] = v
         self.resumed = True
         self.counters.update(state["counters"])
+        # Unrolls the checkpointed session had received but not yet trained on (the run's
+        # `pending_unrolls`): received, never trained, left unused by the session that died.
+        pending = state.get("pending_unrolls", 0)
+        if isinstance(pending, int) and not isinstance(pending, bool) and 0 <= pending < 2**31:
+            self.counters["unused_at_resume"] += pending
         self.snapshots.rejected.update(state.get("snapshot_rejected_counters", {}))
         self.snapshots.dropped.update(state.get("snapshot_dropped_counters", {}))
         self.snapshots.served += int(state.get("snapshots_served", 0))

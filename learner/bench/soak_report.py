@@ -7,7 +7,7 @@ Loss accounting. Ground truth is the actors' durable sequence ledgers (`actors/s
 every unroll an actor numbered was received by the learner, or counted as a sequence gap, or
 still in flight at the stop, or counted under `lost/*` (work lost at a resume: counters by that
 name, where the learner has them). Every received unroll was trained on, dropped as stale,
-or left unused at the stop. What these identities do not explain is "uncounted"; a negative
+or left unused at the stop or by a killed session (`unused_at_resume`). What these identities do not explain is "uncounted"; a negative
 figure means the learner booked more than the actors ever numbered: forged counters accepted.
 """
 
@@ -50,7 +50,8 @@ def accounting(final: dict) -> dict[str, float]:
     in_flight = sum(n - 1 - last_seq.get(a, -1) for a, n in final.get("ledger", {}).items())
     lost_named = _sum({**metrics, **{f"lost/{k[5:]}": v for k, v in c.items() if k.startswith("lost/")}}, "lost/")
     received = c.get("unrolls_received", 0)
-    gaps, stale, unused, trained = (c.get(k, 0) for k in ("seq_gap_unrolls", "stale_unrolls", "unused_at_stop", "unrolls_trained"))
+    gaps, stale, trained = (c.get(k, 0) for k in ("seq_gap_unrolls", "stale_unrolls", "unrolls_trained"))
+    unused = c.get("unused_at_stop", 0) + c.get("unused_at_resume", 0)
     return {
         "numbered": numbered, "received": received, "trained": trained, "gaps": gaps, "stale": stale, "unused": unused,
         "in_flight": in_flight, "lost_named": sum(lost_named.values()),
@@ -117,8 +118,9 @@ def report(rec: SoakRecord, out=print) -> bool:
         counted = a["gaps"] + a["stale"] + a["unused"] + a["in_flight"] + a["lost_named"]
         out(f"unrolls:          numbered {a['numbered']:,d} by the actors, received {a['received']:,d}, "
             f"trained {a['trained']:,d}")
-        out(f"losses counted:   {counted:,d} (gaps {a['gaps']:,d}, stale {a['stale']:,d}, unused at stop {a['unused']:,d}, "
-            f"in flight at stop {a['in_flight']:,d}, lost/* {a['lost_named']:,d})")
+        out(f"losses counted:   {counted:,d} (gaps {a['gaps']:,d}, stale {a['stale']:,d}, unused at stop or resume {a['unused']:,d}, "
+            f"in flight at stop {a['in_flight']:,d}, lost/* {a['lost_named']:,d}; "
+            f"late arrivals {c.get('late_unrolls', 0):,d}, not gaps)")
         uncounted = a["uncounted_wire"] + a["uncounted_learner"]
         line = f"losses uncounted: {uncounted:,d} (wire {a['uncounted_wire']:,d}, learner {a['uncounted_learner']:,d})"
         if a["uncounted_wire"] < 0 or a["uncounted_learner"] < 0:

@@ -101,6 +101,13 @@ def test_a_killed_learner_resumes_every_counter_and_counts_what_it_lost(tmp_path
     assert lost_steps // per_unroll <= at_resume <= lost_steps // per_unroll + 8, at_resume
     assert final["transport"]["counters"].get("seq_gap_unrolls", 0) == saved["transport"]["counters"].get("seq_gap_unrolls", 0)
     assert final["transport"]["bytes_received"] > saved["transport"]["bytes_received"]
+    # Every unroll received was trained on, dropped as stale, or left unused: at this stop, or by
+    # the killed session (received before its checkpoint, waiting for the next batch).
+    c = final["transport"]["counters"]
+    assert c.get("unused_at_resume", 0) == saved["transport"]["pending_unrolls"]
+    assert c["unrolls_received"] == (c["unrolls_trained"] + c.get("stale_unrolls", 0) + c.get("unused_at_stop", 0)
+                                     + c.get("unused_at_resume", 0)), c
+    assert final["transport"]["pending_unrolls"] == 0  # a clean stop counted them as unused_at_stop
     # The value pairs the sampler had taken after the checkpoint and no longer holds.
     came_back = int(re.search(r"sampler (?:kept its own state file|restored from the checkpoint) \((\d+) pairs", out).group(1))
     assert came_back >= pairs_taken_of(checkpoint.from_checkpointable(saved["sampler"]))

@@ -203,6 +203,34 @@ def test_after_a_resume_a_spoofed_low_number_or_an_implausible_jump_books_nothin
         t.close()
 
 
+def test_an_unroll_that_arrives_after_a_later_number_is_taken_back_from_the_gaps():
+    """A restarted actor's new connection can be read before the unroll its killed process left
+    on the old one (the PULL socket takes turns between connections; CI saw seq 27 before 26).
+    The gap booked when 27 came first is taken back when 26 arrives: counted as `late_unrolls`,
+    received once, no sequence restart, and the high-water mark stays where it was."""
+    t = _transport()
+    old, new = _push(t), _push(t)
+    try:
+        for seq in (0, 1):
+            old.send_multipart(wire.encode(_unroll(seq)))
+        assert [u.seq for u in _drain(t, rounds=5)] == [0, 1]
+        new.send_multipart(wire.encode(_unroll(3)))  # the restarted process, first
+        assert [u.seq for u in _drain(t, rounds=5)] == [3]
+        assert t.lost() == 1
+        old.send_multipart(wire.encode(_unroll(2)))  # the killed process's last unroll, late
+        new.send_multipart(wire.encode(_unroll(4)))
+        assert sorted(u.seq for u in _drain(t, rounds=5)) == [2, 4]
+        assert t.lost() == 0 and t.counters["late_unrolls"] == 1 and t.counters["seq_restarts"] == 0
+        assert t.received[1] == 5 and t.last_seq[1] == 4
+        old.send_multipart(wire.encode(_unroll(2)))  # the same number again is no second late arrival
+        _drain(t, rounds=5)
+        assert t.lost() == 0 and t.counters["late_unrolls"] == 1 and t.last_seq[1] == 4
+    finally:
+        old.close()
+        new.close()
+        t.close()
+
+
 def test_heartbeats_expose_lost_unrolls_and_drain_at_stop_counts_what_arrives():
     """A heartbeat follows the unrolls on their pipe: numbers up to its seq that did not arrive
     are lost. At stop, `drain` reads until each actor's final heartbeat: what arrives then is

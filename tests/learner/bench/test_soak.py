@@ -42,8 +42,8 @@ def test_a_short_soak_injects_every_fault_and_reports_what_it_found() -> None:
 
 def _status(**kw) -> dict:
     base = {"iteration": 40, "env_steps": 40960, "episodes": 500, "return": 30.0, "final": True, "faults": [],
-            "counters": {"unrolls_received": 170, "unrolls_trained": 160, "stale_unrolls": 4, "unused_at_stop": 6,
-                         "seq_gap_unrolls": 2},
+            "counters": {"unrolls_received": 171, "unrolls_trained": 160, "stale_unrolls": 4, "unused_at_stop": 6,
+                         "unused_at_resume": 1, "seq_gap_unrolls": 1, "late_unrolls": 1},
             "learner_counters": {"divergences": 3}, "metrics": {}, "ledger": {"0": 86, "1": 86},
             "last_seq": {"0": 85, "1": 85}}
     base.update(kw)
@@ -58,6 +58,7 @@ def test_the_report_balances_the_ledger_and_compares_with_the_clean_run() -> Non
     assert report(rec, out=lines.append)
     text = "\n".join(lines)
     assert "losses counted:   12 " in text and "losses uncounted: 0 " in text, text
+    assert "unused at stop or resume 7" in text and "late arrivals 1, not gaps" in text, text
     assert "faults survived:  1/1" in text and "3.2% apart" in text
 
 
