@@ -7,8 +7,9 @@ Loss accounting. Ground truth is the actors' durable sequence ledgers (`actors/s
 every unroll an actor numbered was received by the learner, or counted as a sequence gap, or
 still in flight at the stop, or counted under `lost/*` (work lost at a resume: counters by that
 name, where the learner has them). Every received unroll was trained on, dropped as stale,
-or left unused at the stop or by a killed session (`unused_at_resume`). What these identities do not explain is "uncounted"; a negative
-figure means the learner booked more than the actors ever numbered: forged counters accepted.
+or left unused: at the stop, or waiting for a batch in a session killed after its checkpoint
+(`unused_at_resume`). What these identities do not explain is "uncounted"; a negative figure
+means the learner booked more than the actors ever numbered: forged counters accepted.
 """
 
 from __future__ import annotations
@@ -51,9 +52,11 @@ def accounting(final: dict) -> dict[str, float]:
     lost_named = _sum({**metrics, **{f"lost/{k[5:]}": v for k, v in c.items() if k.startswith("lost/")}}, "lost/")
     received = c.get("unrolls_received", 0)
     gaps, stale, trained = (c.get(k, 0) for k in ("seq_gap_unrolls", "stale_unrolls", "unrolls_trained"))
-    unused = c.get("unused_at_stop", 0) + c.get("unused_at_resume", 0)
+    at_stop, at_resume = c.get("unused_at_stop", 0), c.get("unused_at_resume", 0)
+    unused = at_stop + at_resume
     return {
         "numbered": numbered, "received": received, "trained": trained, "gaps": gaps, "stale": stale, "unused": unused,
+        "unused_at_stop": at_stop, "unused_at_resume": at_resume,
         "in_flight": in_flight, "lost_named": sum(lost_named.values()),
         "uncounted_wire": numbered - received - gaps - in_flight - sum(lost_named.values()),
         "uncounted_learner": received - trained - stale - unused,
@@ -118,7 +121,8 @@ def report(rec: SoakRecord, out=print) -> bool:
         counted = a["gaps"] + a["stale"] + a["unused"] + a["in_flight"] + a["lost_named"]
         out(f"unrolls:          numbered {a['numbered']:,d} by the actors, received {a['received']:,d}, "
             f"trained {a['trained']:,d}")
-        out(f"losses counted:   {counted:,d} (gaps {a['gaps']:,d}, stale {a['stale']:,d}, unused at stop or resume {a['unused']:,d}, "
+        out(f"losses counted:   {counted:,d} (gaps {a['gaps']:,d}, stale {a['stale']:,d}, unused at stop {a['unused_at_stop']:,d}, "
+            f"unused by a killed session {a['unused_at_resume']:,d}, "
             f"in flight at stop {a['in_flight']:,d}, lost/* {a['lost_named']:,d}; "
             f"late arrivals {c.get('late_unrolls', 0):,d}, not gaps)")
         uncounted = a["uncounted_wire"] + a["uncounted_learner"]

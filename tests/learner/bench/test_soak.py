@@ -58,7 +58,7 @@ def test_the_report_balances_the_ledger_and_compares_with_the_clean_run() -> Non
     assert report(rec, out=lines.append)
     text = "\n".join(lines)
     assert "losses counted:   12 " in text and "losses uncounted: 0 " in text, text
-    assert "unused at stop or resume 7" in text and "late arrivals 1, not gaps" in text, text
+    assert "unused at stop 6, unused by a killed session 1," in text and "late arrivals 1, not gaps" in text, text
     assert "faults survived:  1/1" in text and "3.2% apart" in text
 
 
