@@ -19,6 +19,8 @@ COUNTS = ("iteration", "env_steps", "policy_version", "episodes")
 """Whole numbers >= 0 at the top of a learner's state."""
 MAX_DEPTH = 16
 """Nesting the tensor walk follows; a state nests 4 deep (sampler -> arrays -> name -> tensor)."""
+_UNEXPLAINED = ("unrolls_received", "unrolls_trained", "stale_unrolls", "unused_at_stop", "unused_at_resume")
+"""Transport counters: received, and what explains a received unroll (`pending_unrolls` is the rest)."""
 
 
 def _whole(value: Any) -> bool:
@@ -59,6 +61,24 @@ def _counter_map(value: Any, name: str) -> str | None:
     return None
 
 
+def _pending_problem(transport: Any) -> str | None:
+    """`transport.pending_unrolls` (unrolls received but not yet in a batch at the save): a whole
+    number no larger than the received unrolls its counters leave unexplained."""
+    if not isinstance(transport, dict) or "pending_unrolls" not in transport:
+        return None
+    pending = transport["pending_unrolls"]
+    if not _whole(pending):
+        return f"transport['pending_unrolls'] = {pending!r}; expected a whole number >= 0"
+    c = transport.get("counters")
+    if isinstance(c, dict) and all(_whole(c.get(k, 0)) for k in _UNEXPLAINED):
+        room = c.get("unrolls_received", 0) - sum(c.get(k, 0) for k in _UNEXPLAINED[1:])
+        if pending > room:
+            return (f"transport['pending_unrolls'] = {pending}; at most {max(room, 0)} (unrolls received and "
+                    f"not yet trained, stale or unused)")
+    return None
+
+
+
 def problem(state: dict[str, Any]) -> str | None:
     """One line naming the first defect of a loaded checkpoint `state`, or None if it is sound."""
     for key in COUNTS:
@@ -83,6 +103,9 @@ def problem(state: dict[str, Any]) -> str | None:
         values = state.get(key, [])
         if not isinstance(values, list) or not all(_number(v) and math.isfinite(v) for v in values):
             return f"{key} must be a list of finite numbers"
+    found = _pending_problem(state.get("transport"))
+    if found:
+        return found
     for family in ("transport", "faults"):
         part = state.get(family)
         if part is None:

@@ -23,9 +23,10 @@ class Collector:
         self.pending: list = []
 
     def _fresh(self, policy_version: int) -> None:
-        keep = [u for u in self.pending if policy_version - u.policy_version <= self.cfg.max_policy_lag]
-        self.transport.counters["stale_unrolls"] += len(self.pending) - len(keep)
-        self.pending = keep
+        with self.stop.held():
+            keep = [u for u in self.pending if policy_version - u.policy_version <= self.cfg.max_policy_lag]
+            self.transport.counters["stale_unrolls"] += len(self.pending) - len(keep)
+            self.pending = keep
 
     def next_batch(self, policy_version: int) -> list | None:
         """The next batch, or None if a stop was requested first."""
@@ -35,8 +36,9 @@ class Collector:
             if self.stop:
                 return None
             self.pool.pump()
-            got = self.transport.receive(0 if self.serial else 50, policy_version, self.cfg.max_policy_lag)
-            self.pending.extend(got)
+            with self.stop.held():  # counted received, then pending: one step under a second signal
+                got = self.transport.receive(0 if self.serial else 50, policy_version, self.cfg.max_policy_lag)
+                self.pending.extend(got)
             if got:
                 last_data = time.monotonic()
             elif time.monotonic() - last_data > WAIT_WARN_S:
@@ -46,9 +48,10 @@ class Collector:
                     raise RuntimeError("every rollout actor is gone; stopping (see the log above for why)")
                 last_data = time.monotonic()
         batch, steps = [], 0
-        while steps < self.cfg.steps_per_iteration:
-            u = self.pending.pop(0)
-            batch.append(u)
-            steps += u.rewards.size
-        self.transport.counters["unrolls_trained"] += len(batch)
+        with self.stop.held():
+            while steps < self.cfg.steps_per_iteration:
+                u = self.pending.pop(0)
+                batch.append(u)
+                steps += u.rewards.size
+            self.transport.counters["unrolls_trained"] += len(batch)
         return batch

@@ -10,9 +10,11 @@ and exited without any checkpoint.
 
 from __future__ import annotations
 
+import contextlib
 import signal
 import threading
 import time
+from collections.abc import Iterator
 
 
 class Interrupted(KeyboardInterrupt):
@@ -31,6 +33,8 @@ class StopFlag:
         """`time.monotonic()` of the first stop request."""
         self.saving = False
         """True while a checkpoint is written: a signal then must not cut it in half."""
+        self._held = 0
+        self._deferred = False
 
     def install(self) -> None:
         if threading.current_thread() is not threading.main_thread():
@@ -44,12 +48,30 @@ class StopFlag:
             if self.saving:
                 print(f"\n[morphmimic] {name}: the checkpoint is being written; stopping right after it", flush=True)
                 return
+            if self._held:
+                self._deferred = True
+                return
             print(f"\n[morphmimic] {name} again: checkpointing now, skipping the drain", flush=True)
             raise Interrupted
         print(f"\n[morphmimic] {name}: checkpointing and stopping (again to hurry)", flush=True)
         self.signal_name = name
         self.at = time.monotonic()
         self.event.set()
+
+    @contextlib.contextmanager
+    def held(self) -> Iterator[None]:
+        """Bookkeeping that a second signal must not cut in half (an unroll counted received and
+        not yet handed on, say): its `Interrupted` is raised when the block ends, not inside it.
+        Keep such blocks short; they may nest."""
+        self._held += 1
+        try:
+            yield
+        finally:
+            self._held -= 1
+        if not self._held and self._deferred:
+            self._deferred = False
+            print("\n[morphmimic] stop signal again: checkpointing now, skipping the drain", flush=True)
+            raise Interrupted
 
     def request(self) -> None:
         """Stop the run as Ctrl-C would (for hooks and benchmarks that decide to end it)."""

@@ -419,8 +419,12 @@ def _stop_and_save(run: Run, interrupted: bool) -> None:
             run.sampler.flush()
     except Interrupted:
         pass
-    run.transport.counters["unused_at_stop"] += len(run.collector.pending)
-    run.collector.pending.clear()  # counted: the final checkpoint must not count them again at a resume
+    try:
+        with run.stop.held():
+            run.transport.counters["unused_at_stop"] += len(run.collector.pending)
+            run.collector.pending.clear()  # counted: the final checkpoint must not count them again at a resume
+    except Interrupted:
+        pass
     run.save(quick=signalled)  # NOTE: always: the drain's counts belong in it even at a saved iteration
     try:
         with run.sampler.quick() if signalled else contextlib.nullcontext():
@@ -465,7 +469,8 @@ def _drain_at_stop(run: Run, quick: bool = False) -> None:
         expect = set(range(len(pool.actors)))
         between = lambda: [a.finish() for a in pool.actors]
     bounds = {"quiet_s": 1.0, "max_s": 3.0} if quick else {}
-    drained = transport.drain(learner.policy_version, run.cfg.max_policy_lag, expect, between=between, **bounds)
+    drained = transport.drain(learner.policy_version, run.cfg.max_policy_lag, expect, between=between,
+                              hold=run.stop.held, **bounds)
     missing = sorted(expect - transport.finals.keys())
     run.out.line(f"[morphmimic] drained {drained} unroll(s) at stop; lost unrolls (sequence gaps) "
                  f"{transport.lost()}" + (f"; no final word from actor(s) {missing}" if missing else ""))

@@ -28,9 +28,11 @@ actor's next unroll is counted from.
 from __future__ import annotations
 
 import collections
+import contextlib
 import logging
 import time
 from collections.abc import Callable
+from typing import ContextManager
 
 import zmq
 
@@ -106,9 +108,11 @@ class LearnerTransport:
         """Most numbers an actor's first number past its resume mark may skip (more is refused as
         `seq_jump`); the run raises it by what the killed session's extra iterations could have
         numbered."""
-        self.missing: dict[int, set[int]] = {}
-        """Numbers counted as gaps per actor (at most `MAX_MISSING` each, the newest): one that
-        arrives after all is taken back from `seq_gap_unrolls` and counted as `late_unrolls`."""
+        self.missing: dict[int, dict[int, str]] = {}
+        """Per actor, the numbers booked as lost in its current numbering, with the counter each
+        was booked under (`seq_gap_unrolls`, or `lost/unrolls_at_resume`); at most `MAX_MISSING`,
+        the highest. One that arrives after all is taken back from its counter and counted as
+        `late_unrolls`. Forgotten when the actor's numbering restarts from below."""
         self.received: collections.Counter[int] = collections.Counter()
         """Valid unrolls received per actor."""
         self.sampler_outages: dict[int, int] = {}
@@ -219,12 +223,12 @@ class LearnerTransport:
         actor whose ledger numbers on from an earlier session), a heartbeat never is. After a
         resume, an actor's first number past its checkpoint mark (`resume_marks`) books what it
         skips as `lost/unrolls_at_resume`, up to `resume_allowance`, instead of as a gap."""
-        if unroll and seq in self.missing.get(actor_id, ()):
-            # Counted as a gap when a later number came first: a restarted actor's new connection
+        booked = self.missing.get(actor_id, {}).pop(seq, None) if unroll else None
+        if booked is not None:
+            # Booked as lost when a later number came first: a restarted actor's new connection
             # can be read before the last unrolls its killed process left queued on the old one
             # (a PULL socket takes turns between connections). Not lost after all.
-            self.missing[actor_id].discard(seq)
-            self.counters["seq_gap_unrolls"] -= 1
+            self.counters[booked] -= 1
             self.counters["late_unrolls"] += 1
             return
         if actor_id not in self.last_seq and self.resumed:
@@ -256,16 +260,18 @@ class LearnerTransport:
             del self.resume_marks[actor_id]
             if base is not None and due > base:
                 self.counters["lost/unrolls_at_resume"] += due - base
+                self._remember_missing(actor_id, range(base + 1, due + 1), "lost/unrolls_at_resume")
                 base = due
         if base is not None and due > base:
             gap = due - base
             if self.counters["seq_gap_unrolls"] == 0:
                 log.warning("actor %d: %d unroll(s) lost (seq %d -> %d)", actor_id, gap, base, seq)
             self.counters["seq_gap_unrolls"] += gap
-            self._remember_missing(actor_id, range(base + 1, due + 1))
+            self._remember_missing(actor_id, range(base + 1, due + 1), "seq_gap_unrolls")
         if unroll:
             if base is None:
                 self.counters["seq_restarts"] += 1
+                self.missing.pop(actor_id, None)  # the new numbering's numbers are not the old one's
             self.numbering[actor_id] = seq
         elif base is not None:
             self.numbering[actor_id] = due
@@ -273,12 +279,12 @@ class LearnerTransport:
         if reached > high:
             self.last_seq[actor_id] = reached
 
-    def _remember_missing(self, actor_id: int, numbers: range) -> None:
-        missing = self.missing.setdefault(actor_id, set())
-        missing.update(numbers[-MAX_MISSING:])
-        if len(missing) > MAX_MISSING:
+    def _remember_missing(self, actor_id: int, numbers: range, counter: str) -> None:
+        missing = self.missing.setdefault(actor_id, {})
+        missing.update(dict.fromkeys(numbers[-MAX_MISSING:], counter))
+        if len(missing) > MAX_MISSING:  # numbers only grow within one numbering: drop the lowest
             for n in sorted(missing)[:len(missing) - MAX_MISSING]:
-                missing.discard(n)
+                del missing[n]
 
     def _book(self, msg, policy_version: int, max_policy_lag: int) -> wire.UnrollMsg | None:
         if isinstance(msg, wire.UnrollMsg) and msg.policy_version > policy_version:
@@ -309,12 +315,15 @@ class LearnerTransport:
         return msg
 
     def drain(self, policy_version: int, max_policy_lag: int, expect_final: set[int],
-              quiet_s: float = 5.0, max_s: float = 30.0, between: Callable[[], None] | None = None) -> int:
+              quiet_s: float = 5.0, max_s: float = 30.0, between: Callable[[], None] | None = None,
+              hold: Callable[[], ContextManager[object]] = contextlib.nullcontext) -> int:
         """At stop, after the actors were told to stop: read the unroll channel until every actor
         in `expect_final` sent its final heartbeat, or nothing arrived for `quiet_s`, or `max_s`
         passed. Everything read is booked as usual (gaps, rejections); fresh unrolls are counted
         as `drained_at_stop` and `unused_at_stop`. `between()` runs between reads (serial mode
-        sends its actors' final heartbeats there). Returns the number of fresh unrolls drained."""
+        sends its actors' final heartbeats there). Each read and its counts run under `hold()` (the
+        run's `StopFlag.held`: a second signal ends the drain between reads, never between an
+        unroll's being received and its being counted). Returns the number of fresh unrolls drained."""
         start = last = time.monotonic()
         drained = 0
         while not expect_final <= self.finals.keys():
@@ -327,13 +336,14 @@ class LearnerTransport:
                 between()
             if self.pull.poll(50, zmq.POLLIN):
                 before = self.counters.total()
-                got = self._read(policy_version, max_policy_lag, 256)
-                drained += len(got)
+                with hold():
+                    got = self._read(policy_version, max_policy_lag, 256)
+                    drained += len(got)
+                    self.counters["drained_at_stop"] += len(got)
+                    self.counters["unused_at_stop"] += len(got)
                 if self.counters.total() != before:
                     last = time.monotonic()
             self.snapshots.serve_pending(0)
-        self.counters["drained_at_stop"] += drained
-        self.counters["unused_at_stop"] += drained
         self.connections.poll(self.counters)
         return drained
 

@@ -94,6 +94,9 @@ def test_resume_auto_with_no_good_checkpoint_exits_2(tmp_path):
     ("config", 7, ["config", "JSON"]),
     ("counters", {"divergences": -1}, ["counters", "divergences"]),
     ("recent_returns", [1.0, float("inf")], ["recent_returns", "finite"]),
+    ("transport", {"pending_unrolls": 1.5}, ["pending_unrolls", "1.5", "whole number"]),
+    ("transport", {"pending_unrolls": 9, "counters": {"unrolls_received": 10, "unrolls_trained": 4}},
+     ["pending_unrolls", "at most 6"]),
 ])
 def test_mistyped_fields_are_named(field, value, words):
     problem = checkpoint_check.problem({"iteration": 2, "env_steps": 10, "lr": 1e-3, "config": "{}", field: value})
@@ -104,7 +107,7 @@ def test_mistyped_fields_are_named(field, value, words):
 
 def test_a_sound_state_and_an_unknown_training_time_pass():
     state = {"iteration": 2, "env_steps": 10, "lr": 1e-3, "train_seconds": float("nan"),
-             "policy": {"w": torch.zeros(2, 2)}, "transport": {"last_seq": {"0": -1}, "counters": {"x": 3}}}
+             "policy": {"w": torch.zeros(2, 2)}, "transport": {"last_seq": {"0": -1}, "counters": {"x": 3, "unrolls_received": 3}, "pending_unrolls": 3}}
     assert checkpoint_check.problem(state) is None
     state["policy"]["normalizer.var"] = torch.tensor([1.0, float("nan")], dtype=torch.float64)
     assert "normalizer.var" in checkpoint_check.problem(state)

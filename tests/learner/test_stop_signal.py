@@ -132,3 +132,31 @@ def test_a_second_sigterm_still_leaves_a_checkpoint(tmp_path):
     path, state = checkpoint.load_latest(tmp_path / "reach-tiny" / "ckpt")
     assert state["iteration"] >= 2, text[-3000:]
     assert "Traceback" not in text
+
+
+def test_a_second_signal_inside_held_bookkeeping_interrupts_when_it_ends():
+    """`StopFlag.held`: a second SIGINT inside the block lets the block finish (an unroll counted
+    received is also handed on), then raises `Interrupted`; outside a block it raises at once."""
+    import pytest
+
+    from learner.signals import Interrupted, StopFlag
+
+    stop = StopFlag()
+    stop.install()
+    try:
+        signal.raise_signal(signal.SIGINT)  # the first: a stop request
+        assert stop and stop.signal_name == "SIGINT"
+        finished = []
+        with pytest.raises(Interrupted):
+            with stop.held():
+                with stop.held():  # nested: raised when the outer block ends
+                    signal.raise_signal(signal.SIGINT)
+                    finished.append("inner")
+                finished.append("outer")
+        assert finished == ["inner", "outer"]
+        with pytest.raises(Interrupted):
+            signal.raise_signal(signal.SIGINT)
+        with stop.held():  # nothing deferred is left over
+            finished.append("again")
+    finally:
+        stop.restore()

@@ -231,6 +231,32 @@ def test_an_unroll_that_arrives_after_a_later_number_is_taken_back_from_the_gaps
         t.close()
 
 
+def test_a_restarted_numbering_forgets_the_old_gaps_and_a_late_unroll_after_a_resume_is_taken_back():
+    """Actor 0 lost seq 2, then restarted its numbering from 0 (no ledger): its new seq 2 is a
+    new unroll, not the old one arriving late, so the gap stays. After a resume (actor 1's mark
+    20), 27 coming first books 21-26 as lost with the killed session; 26 arriving after it is
+    taken back from `lost/unrolls_at_resume`."""
+    before = _transport()
+    before.last_seq[1] = 20
+    state = before.state_dict()
+    before.close()
+    t = _transport()
+    t.load_state_dict(state)
+    push = _push(t)
+    try:
+        for seq in (0, 1, 3, 0, 1, 2):
+            push.send_multipart(wire.encode(_unroll(seq, actor_id=0)))
+        push.send_multipart(wire.encode(_unroll(27)))
+        push.send_multipart(wire.encode(_unroll(26)))
+        assert len(_drain(t, rounds=10)) == 8
+        assert t.lost() == 1 and t.counters["seq_restarts"] == 1
+        assert t.counters["lost/unrolls_at_resume"] == 5 and t.counters["late_unrolls"] == 1
+        assert t.last_seq == {0: 3, 1: 27}
+    finally:
+        push.close()
+        t.close()
+
+
 def test_heartbeats_expose_lost_unrolls_and_drain_at_stop_counts_what_arrives():
     """A heartbeat follows the unrolls on their pipe: numbers up to its seq that did not arrive
     are lost. At stop, `drain` reads until each actor's final heartbeat: what arrives then is
