@@ -35,6 +35,18 @@ def _unroll(seq: int, version: int = 0, actor_id: int = 1, t: int = T, n: int = 
     return dataclasses.replace(msg, **kw)
 
 
+def _resumed(marks: dict[int, int], gaps: int = 0, **kw) -> LearnerTransport:
+    """A transport resumed from a checkpoint whose actors had reached `marks` (and `gaps` lost)."""
+    before = _transport(**kw)
+    before.last_seq.update(marks)
+    before.counters["seq_gap_unrolls"] = gaps
+    state = before.state_dict()
+    before.close()
+    t = _transport(**kw)
+    t.load_state_dict(state)
+    return t
+
+
 def _push(t: LearnerTransport) -> zmq.Socket:
     push = zmq.Context.instance().socket(zmq.PUSH)
     push.setsockopt(zmq.LINGER, 1000)
@@ -153,13 +165,7 @@ def test_a_resumed_learner_counts_what_the_killed_session_took_after_its_checkpo
     killed; the actor's ledger numbers on from 20. Those 9 are work lost with the session
     (`lost/unrolls_at_resume`), not wire gaps; only a gap after the new baseline is one. Actor
     0, absent from the checkpoint, sets its baseline and books nothing."""
-    before = _transport()
-    before.last_seq[1] = 10
-    before.counters["seq_gap_unrolls"] = 3
-    state = before.state_dict()
-    before.close()
-    t = _transport()
-    t.load_state_dict(state)
+    t = _resumed({1: 10}, gaps=3)
     push = _push(t)
     try:
         push.send_multipart(wire.encode(wire.HeartbeatMsg(actor_id=0, seq=40, env_steps=1)))  # baseline, no gap
@@ -181,12 +187,7 @@ def test_after_a_resume_a_spoofed_low_number_or_an_implausible_jump_books_nothin
     follow book only what the killed session took (here 11-19), no phantom gap. A first number
     past the mark by more than the killed session could have numbered is refused, and the
     unroll after it, following on, is taken without booking the jump."""
-    before = _transport(num_actors=3)
-    before.last_seq.update({0: 7, 1: 10, 2: 5})
-    state = before.state_dict()
-    before.close()
-    t = _transport(num_actors=3)
-    t.load_state_dict(state)
+    t = _resumed({0: 7, 1: 10, 2: 5}, num_actors=3)
     t.resume_allowance = 50
     push = _push(t)
     try:
@@ -236,12 +237,7 @@ def test_a_restarted_numbering_forgets_the_old_gaps_and_a_late_unroll_after_a_re
     new unroll, not the old one arriving late, so the gap stays. After a resume (actor 1's mark
     20), 27 coming first books 21-26 as lost with the killed session; 26 arriving after it is
     taken back from `lost/unrolls_at_resume`."""
-    before = _transport()
-    before.last_seq[1] = 20
-    state = before.state_dict()
-    before.close()
-    t = _transport()
-    t.load_state_dict(state)
+    t = _resumed({1: 20})
     push = _push(t)
     try:
         for seq in (0, 1, 3, 0, 1, 2):
