@@ -78,7 +78,6 @@ def _pending_problem(transport: Any) -> str | None:
     return None
 
 
-
 def problem(state: dict[str, Any]) -> str | None:
     """One line naming the first defect of a loaded checkpoint `state`, or None if it is sound."""
     for key in COUNTS:

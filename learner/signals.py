@@ -34,7 +34,9 @@ class StopFlag:
         self.saving = False
         """True while a checkpoint is written: a signal then must not cut it in half."""
         self._held = 0
-        self._deferred = False
+        """Depth of `held` blocks running now."""
+        self._deferred = ""
+        """The second signal that a `held` block put off ("" when none)."""
 
     def install(self) -> None:
         if threading.current_thread() is not threading.main_thread():
@@ -48,11 +50,10 @@ class StopFlag:
             if self.saving:
                 print(f"\n[morphmimic] {name}: the checkpoint is being written; stopping right after it", flush=True)
                 return
-            if self._held:
-                self._deferred = True
-                return
-            print(f"\n[morphmimic] {name} again: checkpointing now, skipping the drain", flush=True)
-            raise Interrupted
+            self._deferred = name
+            if not self._held:
+                self._interrupt()
+            return
         print(f"\n[morphmimic] {name}: checkpointing and stopping (again to hurry)", flush=True)
         self.signal_name = name
         self.at = time.monotonic()
@@ -69,9 +70,12 @@ class StopFlag:
         finally:
             self._held -= 1
         if not self._held and self._deferred:
-            self._deferred = False
-            print("\n[morphmimic] stop signal again: checkpointing now, skipping the drain", flush=True)
-            raise Interrupted
+            self._interrupt()
+
+    def _interrupt(self) -> None:
+        name, self._deferred = self._deferred, ""
+        print(f"\n[morphmimic] {name} again: checkpointing now, skipping the drain", flush=True)
+        raise Interrupted
 
     def request(self) -> None:
         """Stop the run as Ctrl-C would (for hooks and benchmarks that decide to end it)."""

@@ -32,7 +32,6 @@ import contextlib
 import logging
 import time
 from collections.abc import Callable
-from typing import ContextManager
 
 import zmq
 
@@ -316,7 +315,7 @@ class LearnerTransport:
 
     def drain(self, policy_version: int, max_policy_lag: int, expect_final: set[int],
               quiet_s: float = 5.0, max_s: float = 30.0, between: Callable[[], None] | None = None,
-              hold: Callable[[], ContextManager[object]] = contextlib.nullcontext) -> int:
+              hold: Callable[[], contextlib.AbstractContextManager] = contextlib.nullcontext) -> int:
         """At stop, after the actors were told to stop: read the unroll channel until every actor
         in `expect_final` sent its final heartbeat, or nothing arrived for `quiet_s`, or `max_s`
         passed. Everything read is booked as usual (gaps, rejections); fresh unrolls are counted
@@ -382,10 +381,8 @@ class LearnerTransport:
         self.resumed = True
         self.counters.update(state["counters"])
         # Unrolls the checkpointed session had received but not yet trained on (the run's
-        # `pending_unrolls`): received, never trained, left unused by the session that died.
-        pending = state.get("pending_unrolls", 0)
-        if isinstance(pending, int) and not isinstance(pending, bool) and 0 <= pending < 2**31:
-            self.counters["unused_at_resume"] += pending
+        # `pending_unrolls`, checked by `checkpoint_check`): left unused by the session that died.
+        self.counters["unused_at_resume"] += int(state.get("pending_unrolls", 0))
         self.snapshots.rejected.update(state.get("snapshot_rejected_counters", {}))
         self.snapshots.dropped.update(state.get("snapshot_dropped_counters", {}))
         self.snapshots.served += int(state.get("snapshots_served", 0))
