@@ -213,9 +213,9 @@ class StudioCore:
         self.message, self.message_is_error = text, False
 
     def _fail(self, label: str, exc: BaseException) -> None:
-        self.errors += 1
         text = str(exc) if isinstance(exc, ValueError) else f"{type(exc).__name__}: {exc}"
         self.message, self.message_is_error = f"{label}: {text}", True
+        self.errors += 1  # NOTE: after the message: a reader that sees the count sees its message
         if not isinstance(exc, ValueError):
             traceback.print_exc()
 

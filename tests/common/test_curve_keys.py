@@ -121,8 +121,9 @@ def test_the_sampler_takes_state_changes_from_the_learner_only() -> None:
     keys = RunKeys.generate()
     space = ParamSpace(("a",), (0.0,), (1.0,), (0.5,))
     service = SamplerService(SamplerConfig(n_mcmc=64, n_chains=4, burn_in=4), space, keys=keys.for_sampler())
-    actor = SamplerClient(service.endpoint, timeout_s=0.5, retries=1, keys=keys.for_actor(0), role=ACTOR)
-    learner = SamplerClient(service.endpoint, timeout_s=0.5, retries=1, keys=keys, role=LEARNER)
+    # NOTE: members wait long (a loaded machine may be slow to serve); only the stranger times out
+    actor = SamplerClient(service.endpoint, timeout_s=5.0, retries=1, keys=keys.for_actor(0), role=ACTOR)
+    learner = SamplerClient(service.endpoint, timeout_s=5.0, retries=1, keys=keys, role=LEARNER)
     stranger = SamplerClient(service.endpoint, timeout_s=0.3, retries=1)
     results = {}
 

@@ -23,7 +23,8 @@ def _pairs(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
 
 def test_pairs_wait_for_a_sampler_that_is_down_and_overflow_is_counted():
     handle = SamplerHandle.start(CFG, SPACE, [], None)
-    handle.client.rpc.timeout_ms, handle.client.rpc.retries = 300, 1
+    patience = handle.client.rpc.timeout_ms, handle.client.rpc.retries
+    handle.client.rpc.timeout_ms, handle.client.rpc.retries = 300, 1  # a quick outage; restored once it is back
     endpoint = handle.endpoint
     try:
         handle.report_and_tick(*_pairs(100, 1), iteration=1)
@@ -38,6 +39,7 @@ def test_pairs_wait_for_a_sampler_that_is_down_and_overflow_is_counted():
         assert handle.pairs_lost == 200
         _, thread, stop = start_in_thread(CFG, SPACE, address=endpoint)  # back, empty, where clients look
         handle.thread, handle.stop_event = thread, stop
+        handle.client.rpc.timeout_ms, handle.client.rpc.retries = patience
         handle.down_until = 0.0
         handle.report_and_tick(*_pairs(50, 4), iteration=4)
         stats = handle.client.stats()

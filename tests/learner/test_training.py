@@ -16,7 +16,7 @@ import numpy as np
 
 from common.policy import GaussianPolicy
 from common.tasks.registry import make_env
-from learner import checkpoint
+from learner import checkpoint, ray_reaper
 from learner.config import RunConfig
 from learner.presets import PRESETS
 from learner.train import train
@@ -141,7 +141,7 @@ def test_sigterm_in_local_mode_checkpoints_exits_zero_and_leaves_no_process(tmp_
         lines.append(line)
         if line.startswith("iter     2"):
             break
-    children = _descendants(proc.pid)
+    children = {c: st[1] for c in _descendants(proc.pid) if (st := ray_reaper._stat(c)) is not None}  # pid: start time
     assert children, "local mode should have started Ray processes"
     proc.send_signal(signal.SIGTERM)
     out, _ = proc.communicate(timeout=90)
@@ -150,9 +150,12 @@ def test_sigterm_in_local_mode_checkpoints_exits_zero_and_leaves_no_process(tmp_
     path, state = checkpoint.load_latest(tmp_path / "reach-tiny" / "ckpt")
     assert state["iteration"] >= 2
     deadline = time.monotonic() + 30
-    while time.monotonic() < deadline and any(Path(f"/proc/{c}").exists() for c in children):
+    def running() -> list[int]:  # NOTE: not a zombie awaiting its reaper, not a new process under a reused pid
+        return [c for c, start in children.items() if (st := ray_reaper._stat(c)) is not None and st[1] == start]
+
+    while time.monotonic() < deadline and running():
         time.sleep(0.5)
-    left = [c for c in children if Path(f"/proc/{c}").exists()]
+    left = running()
     assert not left, f"processes left behind: {left}"
 
 

@@ -58,13 +58,13 @@ def screenshot_until(browser: Chromium, predicate, timeout_s: float) -> np.ndarr
 def test_the_page_shows_the_character_in_3d(studio) -> None:
     assert studio.url.startswith("http://127.0.0.1:")
     with Chromium(studio.url, 1024, 640) as browser:
-        shown = screenshot_until(browser, lambda img: character_pixels(img) > 400, 30.0)
+        shown = screenshot_until(browser, lambda img: character_pixels(img) > 400, studio_mod.SCREENSHOT_TIMEOUT_S)
         assert character_pixels(shown) > 400, "no character in the page's 3-D view"
         assert shown.std() > 10.0  # not a blank page
         assert len(studio.server.get_clients()) == 1
         studio.scene.visible = False  # the same page without the character
         try:
-            empty = screenshot_until(browser, lambda img: character_pixels(img) < 50, 15.0)
+            empty = screenshot_until(browser, lambda img: character_pixels(img) < 50, 30.0)
         finally:
             studio.scene.visible = True
         assert character_pixels(empty) < 50
@@ -182,7 +182,8 @@ def test_the_executor_loads_from_the_dropdown_and_is_steered(studio) -> None:
     gui.checkpoint.value = "executor"  # loads in its own thread; the biped keeps walking meanwhile
     assert wait_for(lambda: core.generation == generation + 1, 30.0), core.message
     assert core.session.kind == "executor" and core.errors == errors
-    assert core.snapshot()["name"] == "executor" and core.message == "loaded executor"  # as picked
+    assert wait_for(lambda: core.message == "loaded executor", 5.0), core.message  # said just after the swap
+    assert core.snapshot()["name"] == "executor"  # as picked
     gui.refresh()
     assert all(slider.disabled for slider in gui._shape_sliders.values()) and "cannot change" in gui.body_note.content
     assert not gui.scheduler.disabled and "executor" in gui.status.content
