@@ -25,16 +25,26 @@ from sampler.marginal_value import MarginalValue
 
 
 def main(state_path: str, eval_dirs: list[str]) -> None:
+    if not pathlib.Path(state_path).is_file():
+        sys.exit(f"{state_path}: no such file; give a run's sampler/sampler-state.npz")
+    for out in eval_dirs:
+        if not (pathlib.Path(out) / "results.json").is_file():
+            sys.exit(f"{out}: no results.json; give a directory written by `morphmimic evaluate --shapes N`")
     tmp = pathlib.Path(tempfile.mkdtemp())
     shutil.copy(state_path, tmp / "sampler-state.npz")
     state = state_file.load(tmp)
-    meta = state["meta"]["vm"]
+    meta = (state or {}).get("meta", {}).get("vm", {})
+    if not meta.get("classes"):
+        sys.exit(f"{state_path}: not a sampler state with Vm over (shape, class); "
+                 "give one from a run with --sampler.shape-by-class (the executor-shape preset)")
     arrays = {k.removeprefix("vm/"): v for k, v in state["arrays"].items() if k.startswith("vm/")}
     vm = MarginalValue(np.array(meta["low"]), np.array(meta["high"]), hidden=tuple(meta["hidden"]), classes=meta["classes"])
     vm.load_state(meta, arrays)
     index = {c: i for i, c in enumerate(meta["classes"])}
     for out in eval_dirs:
         results = json.loads((pathlib.Path(out) / "results.json").read_text())
+        if "shapes" not in results.get("summary", {}):
+            sys.exit(f"{out}: an evaluation without --shapes; this compares Vm with success over body shapes")
         eps = [e for e in results["episodes"] if clip_class(e["label"]) in index]
         shapes = np.array([e["shape"] for e in eps])
         success = np.array([e["success"] for e in eps], float)

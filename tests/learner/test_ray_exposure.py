@@ -17,37 +17,11 @@ from pathlib import Path
 import pytest
 import yaml
 
-from learner import ray_reaper
+from tests.learner.processes import alive, descendants
 
 ROOT = Path(__file__).resolve().parents[2]
 LEAVE_S = 10.0
 """How long a Ray process may outlive a SIGKILLed learner (main: 60-75 s)."""
-
-
-def _descendants(pid: int) -> dict[int, int]:
-    """pid -> start time of every live descendant of `pid` (from /proc)."""
-    table = {}
-    for entry in os.listdir("/proc"):
-        if entry.isdigit() and (st := ray_reaper._stat(int(entry))) is not None:
-            table[int(entry)] = st
-    out, stack = {}, [pid]
-    while stack:
-        parent = stack.pop()
-        for child, (ppid, start, _) in table.items():
-            if ppid == parent and child not in out:
-                out[child] = start
-                stack.append(child)
-    return out
-
-
-def _alive(pids: dict[int, int]) -> dict[int, str]:
-    out = {}
-    for pid, start in pids.items():
-        st = ray_reaper._stat(pid)
-        if st is not None and st[1] == start:
-            argv0 = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")[0].decode(errors="replace")
-            out[pid] = Path(argv0).name  # the program's name: a clone's path may be any length
-    return out
 
 
 def _listening(pids: set[int]) -> list[tuple[str, int, str]]:
@@ -93,8 +67,8 @@ def test_a_local_run_listens_on_loopback_only_and_nothing_of_ray_outlives_a_kill
     try:
         lines = _read_until(proc, "iter     1")
         assert any(line.startswith("iter     1") for line in lines), "".join(lines[-30:])
-        seen = _descendants(proc.pid)
-        names = _alive(seen)
+        seen = descendants(proc.pid)
+        names = alive(seen)
         assert any("gcs_server" in n for n in names.values()) and any("raylet" in n for n in names.values()), names
         sockets = _listening({proc.pid, *seen})
         assert len(sockets) >= 4, sockets  # GCS, raylet, workers, the learner's own
@@ -105,14 +79,14 @@ def test_a_local_run_listens_on_loopback_only_and_nothing_of_ray_outlives_a_kill
         proc.send_signal(signal.SIGKILL)
         proc.wait(timeout=30)
         end = time.monotonic() + LEAVE_S
-        while _alive(seen) and time.monotonic() < end:
+        while alive(seen) and time.monotonic() < end:
             time.sleep(0.2)
-        assert not _alive(seen), f"still running {LEAVE_S:g} s after the learner's SIGKILL: {_alive(seen)}"
+        assert not alive(seen), f"still running {LEAVE_S:g} s after the learner's SIGKILL: {alive(seen)}"
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait(timeout=30)
-        for pid in _alive(seen):  # only this test's own processes, by pid
+        for pid in alive(seen):  # only this test's own processes, by pid
             os.kill(pid, signal.SIGKILL)
 
 
@@ -137,8 +111,8 @@ def test_the_local_test_cluster_listens_on_loopback_only() -> None:
         lines = _read_until(proc, "stop it:")
         assert any("test cluster up" in line for line in lines), "".join(lines[-30:])
         assert "at 127.0.0.1:" in "".join(lines)
-        seen = _descendants(proc.pid)
-        names = _alive(seen)
+        seen = descendants(proc.pid)
+        names = alive(seen)
         assert sum("raylet" in n for n in names.values()) == 3, names  # head + 2 workers
         sockets = _listening({proc.pid, *seen})
         assert len(sockets) >= 6, sockets
@@ -151,5 +125,5 @@ def test_the_local_test_cluster_listens_on_loopback_only() -> None:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(timeout=30)
-        for pid in _alive(seen):
+        for pid in alive(seen):
             os.kill(pid, signal.SIGKILL)

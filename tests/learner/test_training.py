@@ -16,10 +16,11 @@ import numpy as np
 
 from common.policy import GaussianPolicy
 from common.tasks.registry import make_env
-from learner import checkpoint, ray_reaper
+from learner import checkpoint
 from learner.config import RunConfig
 from learner.presets import PRESETS
 from learner.train import train
+from tests.learner.processes import alive, descendants
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -114,23 +115,6 @@ def test_cli_local_mode_leaves_config_checkpoint_log_and_vm_map(tmp_path):
     assert len(actors) == 2 and all(a["env_steps"] > 0 for a in actors)
 
 
-def _descendants(pid: int) -> set[int]:
-    """Every process below `pid`, from /proc (no psutil needed)."""
-    found, todo = set(), [pid]
-    while todo:
-        p = todo.pop()
-        for task in Path(f"/proc/{p}/task").glob("*"):
-            try:
-                children = (task / "children").read_text().split()
-            except OSError:
-                continue
-            for child in map(int, children):
-                if child not in found:
-                    found.add(child)
-                    todo.append(child)
-    return found
-
-
 def test_sigterm_in_local_mode_checkpoints_exits_zero_and_leaves_no_process(tmp_path):
     proc = _cli("--preset", "reach-tiny", "--mode", "local", "--runs-dir", str(tmp_path),
                 "--total-env-steps", "100000000", "--checkpoint-every", "1000")
@@ -141,7 +125,7 @@ def test_sigterm_in_local_mode_checkpoints_exits_zero_and_leaves_no_process(tmp_
         lines.append(line)
         if line.startswith("iter     2"):
             break
-    children = {c: st[1] for c in _descendants(proc.pid) if (st := ray_reaper._stat(c)) is not None}  # pid: start time
+    children = descendants(proc.pid)  # pid: start time
     assert children, "local mode should have started Ray processes"
     proc.send_signal(signal.SIGTERM)
     out, _ = proc.communicate(timeout=90)
@@ -150,12 +134,9 @@ def test_sigterm_in_local_mode_checkpoints_exits_zero_and_leaves_no_process(tmp_
     path, state = checkpoint.load_latest(tmp_path / "reach-tiny" / "ckpt")
     assert state["iteration"] >= 2
     deadline = time.monotonic() + 30
-    def running() -> list[int]:  # NOTE: not a zombie awaiting its reaper, not a new process under a reused pid
-        return [c for c, start in children.items() if (st := ray_reaper._stat(c)) is not None and st[1] == start]
-
-    while time.monotonic() < deadline and running():
+    while time.monotonic() < deadline and alive(children):  # NOTE: not a zombie, not a reused pid
         time.sleep(0.5)
-    left = running()
+    left = alive(children)
     assert not left, f"processes left behind: {left}"
 
 
